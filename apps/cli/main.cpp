@@ -1,0 +1,49 @@
+// `nerfslam <subcommand> ...`: the one command-line entry point. Subcommands live in cmd_*.cpp.
+#include <algorithm>
+#include <cstdio>
+#include <map>
+
+#include <spdlog/spdlog.h>
+
+#include "command.h"
+#include "nerfslam/core/error.h"
+
+namespace nerfslam::cli {
+std::vector<CommandSpec>& registry() {
+  static std::vector<CommandSpec> r;
+  return r;
+}
+}  // namespace nerfslam::cli
+
+int main(int argc, char** argv) {
+  using namespace nerfslam::cli;
+  CLI::App app{"nerfslam: monocular SLAM with a CPU-trained neural radiance field map"};
+  app.require_subcommand(1);
+  std::string log_level = "info";
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}));
+  auto specs = registry();
+  std::sort(specs.begin(), specs.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
+  std::map<CLI::App*, Runner> runners;
+  for (const auto& s : specs) {
+    CLI::App* sub = app.add_subcommand(s.name, s.help);
+    runners[sub] = s.setup(*sub);
+  }
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  spdlog::set_level(spdlog::level::from_str(log_level));
+  try {
+    for (auto& [sub, run] : runners)
+      if (sub->parsed()) return run();
+  } catch (const nerfslam::Error& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return 1;
+  }
+  return 1;
+}

@@ -1,0 +1,26 @@
+# nerfslam_module(<name> [DEPS module...] [LIBS lib...])
+# Builds src/<name>/*.cpp into the static library nerfslam_<name>, with public headers under
+# include/nerfslam/<name>/. DEPS are lower modules (the layering rule: lower never includes higher).
+set(NERFSLAM_MODULES "" CACHE INTERNAL "")
+function(nerfslam_module name)
+  cmake_parse_arguments(M "" "" "DEPS;LIBS" ${ARGN})
+  file(GLOB _srcs CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/src/${name}/*.cpp)
+  set(_target nerfslam_${name})
+  set(_deps "")
+  foreach(d ${M_DEPS})
+    list(APPEND _deps nerfslam_${d})
+  endforeach()
+  if(_srcs)
+    add_library(${_target} STATIC ${_srcs})
+    target_include_directories(${_target} PUBLIC
+      $<BUILD_INTERFACE:${PROJECT_SOURCE_DIR}/include> $<INSTALL_INTERFACE:include>
+      PRIVATE ${PROJECT_SOURCE_DIR}/src)
+    target_link_libraries(${_target} PUBLIC ${_deps} ${M_LIBS})
+    target_compile_definitions(${_target} PRIVATE NERFSLAM_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
+  else()
+    add_library(${_target} INTERFACE)
+    target_include_directories(${_target} INTERFACE ${PROJECT_SOURCE_DIR}/include)
+    target_link_libraries(${_target} INTERFACE ${_deps} ${M_LIBS})
+  endif()
+  set(NERFSLAM_MODULES ${NERFSLAM_MODULES} ${_target} CACHE INTERNAL "")
+endfunction()

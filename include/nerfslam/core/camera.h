@@ -1,0 +1,61 @@
+#pragma once
+// Pinhole camera with optional radial-tangential (k1 k2 p1 p2 [k3], OpenCV "plumb_bob") or
+// equidistant fisheye (k1 k2 k3 k4, OpenCV fisheye / Kalibr "equidistant") distortion.
+// Pixel convention: OpenCV's (the centre of the top-left pixel is (0, 0)).
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+namespace nerfslam {
+
+enum class DistortionModel { kNone, kRadTan, kEquidistant };
+std::string toString(DistortionModel m);  // "none", "radtan", "equidistant"
+
+class Camera {
+ public:
+  int width = 0;
+  int height = 0;
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+  DistortionModel distortion_model = DistortionModel::kNone;
+  std::vector<double> distortion;  // radtan: 4 or 5 coefficients; equidistant: 4; none: empty
+
+  static Camera pinhole(int width, int height, double fx, double fy, double cx, double cy);
+
+  // Throws nerfslam::Error naming `source` and the offending field (fx <= 0, NaN, sizes <= 0,
+  // wrong number of distortion coefficients, principal point far outside the image, ...).
+  void validate(const std::string& source = "camera") const;
+
+  Eigen::Matrix3d K() const;
+  cv::Mat cvK() const;     // 3x3 CV_64F
+  cv::Mat cvDist() const;  // 1xN CV_64F (empty when kNone)
+  bool hasDistortion() const;
+
+  // Camera-frame point -> distorted pixel. Points with z <= 0 give NaN.
+  Eigen::Vector2d project(const Eigen::Vector3d& p_cam) const;
+  // As project(), false when z <= 0 or the pixel falls outside the image (with `border` pixels margin).
+  bool projectInImage(const Eigen::Vector3d& p_cam, Eigen::Vector2d* uv, double border = 0.0) const;
+  // Distorted pixel -> ray (x, y, 1) in the camera frame (undistortion by iteration).
+  Eigen::Vector3d unproject(const Eigen::Vector2d& uv) const;
+  // Distorted pixel <-> ideal (undistorted) pinhole pixel with the same K.
+  Eigen::Vector2d undistortPoint(const Eigen::Vector2d& uv) const;
+  Eigen::Vector2d distortPoint(const Eigen::Vector2d& uv_ideal) const;
+  // Resamples an image to the ideal pinhole camera `undistorted()` (bilinear).
+  cv::Mat undistortImage(const cv::Mat& image) const;
+  // Same K and size, no distortion.
+  Camera undistorted() const;
+  // Intrinsics for an image resized by `factor` (e.g. 0.5 for a pyramid level), pixel-centre aware.
+  Camera scaled(double factor) const;
+
+  std::string describe() const;  // one line for logs
+};
+
+// Loads our camera YAML or a ROS camera_info calibration YAML (as written by camera_calibration),
+// detected from the keys. Validates; errors name the file and field.
+Camera loadCameraYaml(const std::filesystem::path& path);
+// Writes our camera YAML atomically.
+void saveCameraYaml(const Camera& camera, const std::filesystem::path& path);
+
+}  // namespace nerfslam

@@ -1,0 +1,53 @@
+#include "test_support.h"
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <atomic>
+#include <cstdio>
+#include <cstdlib>
+
+namespace nerfslam::test {
+namespace fs = std::filesystem;
+
+fs::path dataDir() {
+  if (const char* env = std::getenv("NERFSLAM_DATA_DIR"); env && *env) return fs::path(env);
+  return fs::path(NERFSLAM_SOURCE_DIR) / ".." / "shared" / "data";
+}
+
+bool dataRequired() {
+  const char* env = std::getenv("NERFSLAM_REQUIRE_DATA");
+  return env && std::string(env) == "1";
+}
+
+fs::path cliPath() { return fs::path(NERFSLAM_CLI_PATH); }
+
+TempDir::TempDir() {
+  static std::atomic<int> counter{0};
+  path_ = fs::temp_directory_path() /
+          ("nerfslam_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+  fs::remove_all(path_);
+  fs::create_directories(path_);
+}
+
+TempDir::~TempDir() {
+  std::error_code ec;
+  fs::permissions(path_, fs::perms::owner_all, fs::perm_options::add, ec);
+  fs::remove_all(path_, ec);
+}
+
+CommandResult runCli(const std::string& args) {
+  CommandResult r;
+  std::string cmd = "'" + cliPath().string() + "' " + args + " 2>&1";
+  FILE* p = ::popen(cmd.c_str(), "r");
+  if (!p) return r;
+  std::array<char, 4096> buf;
+  size_t n;
+  while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
+  int status = ::pclose(p);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return r;
+}
+
+}  // namespace nerfslam::test

@@ -1,0 +1,45 @@
+#pragma once
+// Shared test helpers: where the shared data lives, temporary directories, running the CLI.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <string>
+
+namespace nerfslam::test {
+
+// ../shared/data next to the source tree, or $NERFSLAM_DATA_DIR when set.
+std::filesystem::path dataDir();
+// True when NERFSLAM_REQUIRE_DATA=1 (CI): a missing data folder is then a failure, not a skip.
+bool dataRequired();
+// The path of the built `nerfslam` binary.
+std::filesystem::path cliPath();
+
+// A fresh directory under the system temp dir, removed (with contents) on destruction.
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  const std::filesystem::path& path() const { return path_; }
+  std::filesystem::path operator/(const std::string& name) const { return path_ / name; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+struct CommandResult {
+  int exit_code = -1;
+  std::string output;  // stdout and stderr interleaved
+};
+// Runs `nerfslam <args>` (args as one shell-quoted string) and captures its output and exit code.
+CommandResult runCli(const std::string& args);
+
+}  // namespace nerfslam::test
+
+// In a TEST body: resolves `sub` under the data dir into `var`, or skips (fails under CI) when absent.
+#define NERFSLAM_REQUIRE_DATA(var, sub)                                                            \
+  const std::filesystem::path var = ::nerfslam::test::dataDir() / (sub);                         \
+  if (!std::filesystem::exists(var)) {                                                             \
+    if (::nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << var;       \
+    GTEST_SKIP() << "test data not found: " << var                                                 \
+                 << " (set NERFSLAM_DATA_DIR to the shared data folder)";                          \
+  }
