@@ -1,0 +1,120 @@
+#pragma once
+// Image-sequence datasets: one interface over an image folder, TUM RGB-D, EuRoC ASL, KITTI
+// odometry, NeRF transforms.json, Middlebury multi-view, Strecha and New Tsukuba layouts.
+//
+//   auto ds = nerfslam::openDataset("euroc:/data/V1_01_easy");   // or just the path
+//   for (size_t i = 0; i < ds->size(); ++i) {
+//     DatasetFrame f = ds->load(i);                               // 8-bit gray by default
+//     if (f.T_world_cam) ...                                      // ground truth, when there is one
+//   }
+//
+// Conventions: poses are T_world_cam (camera-to-world, OpenCV optical axes: x right, y down,
+// z forward), in metres where the dataset has a metric scale. Timestamps are seconds, strictly
+// increasing. Frame indices are 0..size()-1 in the dataset's order.
+//
+// Opening is cheap: index files are parsed, listed image files are checked to exist (no decoding)
+// and only the first image is decoded (to fix the sequence's image size and check it against the
+// calibration). Errors always name the file, and the line or field where there is one:
+//   - at open: missing folder/index file, no frames, a listed image that does not exist,
+//     timestamps that do not strictly increase, malformed numbers, camera size != first image;
+//   - at load(i): an unreadable or truncated image (PNG without IEND, JPEG without EOI) or one whose
+//     size differs from the first frame's. Such a frame is not skipped silently: the caller decides
+//     (catching the Error of one load() leaves the dataset usable for the other frames).
+//
+// Kinds and what they read (details in src/io/reader_<kind>.cpp):
+//   folder      image files in natural order; times.txt / timestamps.txt or DatasetOptions::fps;
+//               camera.yaml in the folder or the override
+//   tum         rgb.txt, groundtruth.txt (nearest within 0.02 s); camera.yaml, the override, or the
+//               Freiburg 1/2/3 calibration from the folder name
+//   euroc       mav0/cam0/{data.csv,sensor.yaml}; ground truth = body pose * T_BS
+//   kitti       image_0/ | image_l/ | image_2/, times.txt, calib.txt (P0/P2), poses*.txt
+//   transforms  NeRF/instant-ngp transforms.json (OpenGL poses converted to OpenCV axes)
+//   middlebury  *_par.txt (x ~ K[R|t]X); only views whose image is present
+//   strecha     images/ + gt_dense_cameras/*.camera (R is camera-to-world, C the centre)
+//   tsukuba     New Tsukuba: images/, cam_traj_truth.txt (cm, S*M*S rotation), intrinsics.txt
+// Views without capture times (transforms without "timestamp", middlebury, strecha) get
+// index / 30 s (or index / DatasetOptions::fps).
+#include <cstddef>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/pose.h"
+
+namespace nerfslam {
+
+enum class ImageMode {
+  kGray,       // 8-bit single channel (CV_8UC1)
+  kColor,      // 8-bit BGR (CV_8UC3)
+  kUnchanged,  // as stored: keeps alpha (NeRF RGBA images are CV_8UC4, BGRA order) and bit depth
+};
+
+struct DatasetFrame {
+  size_t index = 0;
+  double timestamp = 0.0;          // seconds
+  cv::Mat image;                   // per the ImageMode asked for
+  std::optional<SE3> T_world_cam;  // ground truth, when the dataset has it for this frame
+  std::string path;                // image file
+};
+
+class Dataset {
+ public:
+  virtual ~Dataset();
+
+  // "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba".
+  virtual std::string kind() const = 0;
+  // The dataset root as given to openDataset.
+  virtual const std::filesystem::path& root() const = 0;
+  // The dataset's calibration, or DatasetOptions::camera_override when one was given.
+  virtual const Camera& camera() const = 0;
+  virtual size_t size() const = 0;
+  virtual double timestamp(size_t i) const = 0;
+  virtual std::string imagePath(size_t i) const = 0;
+  // T_world_cam (OpenCV optical axes) of frame i, when known.
+  virtual std::optional<SE3> groundTruth(size_t i) const = 0;
+  virtual bool hasGroundTruth() const = 0;
+  // Decodes frame i. const and free of shared state: safe to call from several threads. Throws nerfslam::Error naming
+  // the file when it is missing, unreadable, truncated, or its size differs from camera(). Throws on i >= size().
+  virtual DatasetFrame load(size_t i, ImageMode mode = ImageMode::kGray) const = 0;
+
+  // Extras some kinds carry (std::nullopt elsewhere).
+  // instant-ngp aabb_scale of a transforms.json (1 when the file omits it).
+  virtual std::optional<double> aabbScale() const { return std::nullopt; }
+  // Ground truth for all frames in order (std::nullopt entries where missing).
+  std::vector<std::optional<SE3>> groundTruthAll() const;
+};
+
+struct DatasetOptions {
+  // Our camera YAML or a ROS camera_info YAML (loadCameraYaml); replaces the dataset's own
+  // calibration. Its width/height must match the images.
+  std::optional<std::filesystem::path> camera_override;
+  // Frame rate giving index / fps timestamps where the layout has no times: an image folder without
+  // times.txt / timestamps.txt (0: such a folder is an error), transforms.json frames without
+  // "timestamp", Middlebury, Strecha, New Tsukuba (0: 30 fps for these).
+  double fps = 0.0;
+  // Use at most this many frames (0: all), after `start` frames skipped, taking every `stride`-th.
+  size_t start = 0;
+  size_t stride = 1;
+  size_t max_frames = 0;
+};
+
+// All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba.
+const std::vector<std::string>& datasetKinds();
+
+// spec is "[kind:]PATH"; the kind is detected from the layout when omitted. Throws
+// nerfslam::Error for an unknown kind (listing the valid ones), a missing path or a bad layout.
+std::unique_ptr<Dataset> openDataset(const std::string& spec, const DatasetOptions& opts = {});
+std::unique_ptr<Dataset> openDataset(const std::string& kind, const std::filesystem::path& path,
+                                     const DatasetOptions& opts = {});
+
+// The kind of the layout at `path`; throws a clear error listing the kinds (and what each needs)
+// when nothing matches.
+std::string detectDatasetKind(const std::filesystem::path& path);
+
+}  // namespace nerfslam

@@ -1,0 +1,29 @@
+#pragma once
+// Image reading with errors that name the file, and natural-order file listing.
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "nerfslam/io/dataset.h"
+
+namespace nerfslam {
+
+// Decodes an image. Throws nerfslam::Error naming the file when it is missing, not an image,
+// or truncated (OpenCV decodes a truncated PNG/JPEG partially with only a warning, so the
+// file is checked for its end-of-image marker: PNG IEND chunk, JPEG EOI).
+// kGray/kColor always give 8-bit images (16-bit data is scaled down by 1/256).
+cv::Mat readImage(const std::filesystem::path& path, ImageMode mode = ImageMode::kGray);
+
+// True for the extensions the image-folder reader accepts: png jpg jpeg bmp tif tiff pgm ppm
+// (case-insensitive).
+bool isImageExtension(const std::filesystem::path& path);
+
+// "img2" < "img10": digit runs compare by value, the rest byte-wise.
+bool naturalLess(const std::string& a, const std::string& b);
+
+// Image files directly in `dir` (not recursive), natural order.
+std::vector<std::filesystem::path> listImages(const std::filesystem::path& dir);
+
+}  // namespace nerfslam

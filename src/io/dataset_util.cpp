@@ -1,0 +1,141 @@
+// Parsing helpers shared by the dataset readers.
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+
+#include "dataset_internal.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/io/image_io.h"
+#include "nerfslam/io/trajectory.h"
+
+namespace nerfslam::io_detail {
+
+std::vector<Line> readDataLines(const fs::path& file) {
+  std::error_code ec;
+  if (!fs::is_regular_file(file, ec)) fail("{}: file not found", file.string());
+  std::ifstream in(file);
+  if (!in) fail("{}: cannot open file", file.string());
+  std::vector<Line> out;
+  std::string s;
+  size_t n = 0;
+  while (std::getline(in, s)) {
+    ++n;
+    if (!s.empty() && s.back() == '\r') s.pop_back();
+    size_t b = s.find_first_not_of(" \t");
+    if (b == std::string::npos || s[b] == '#') continue;
+    size_t e = s.find_last_not_of(" \t");
+    out.push_back({n, s.substr(b, e - b + 1)});
+  }
+  if (in.bad()) fail("{}: read error", file.string());
+  return out;
+}
+
+std::vector<std::string> splitTokens(const std::string& s, bool commas) {
+  std::vector<std::string> out;
+  std::string cur;
+  for (char c : s) {
+    if (std::isspace(static_cast<unsigned char>(c)) || (commas && c == ',')) {
+      if (!cur.empty()) out.push_back(std::move(cur));
+      cur.clear();
+    } else {
+      cur.push_back(c);
+    }
+  }
+  if (!cur.empty()) out.push_back(std::move(cur));
+  return out;
+}
+
+double parseNumber(const std::string& tok, const fs::path& file, size_t line, const std::string& what) {
+  const char* b = tok.c_str();
+  char* e = nullptr;
+  const double v = std::strtod(b, &e);
+  if (tok.empty() || e != b + tok.size() || !std::isfinite(v))
+    fail("{}:{}: {} '{}' is not a finite number", file.string(), line, what, tok);
+  return v;
+}
+
+std::vector<double> parseNumbers(const Line& line, const fs::path& file, size_t min_count, const std::string& what,
+                                 bool commas) {
+  const auto toks = splitTokens(line.text, commas);
+  if (toks.size() < min_count)
+    fail("{}:{}: expected {} numbers ({}), found {}", file.string(), line.number, min_count, what, toks.size());
+  std::vector<double> v;
+  v.reserve(toks.size());
+  for (const auto& t : toks) v.push_back(parseNumber(t, file, line.number, what));
+  return v;
+}
+
+void checkIncreasing(double prev, double t, const fs::path& file, size_t line) {
+  if (!(t > prev))
+    fail("{}:{}: timestamp {:.9f} is not after the previous one ({:.9f}); timestamps must increase", file.string(),
+         line, t, prev);
+}
+
+std::vector<TimedPose> checkedTimes(const Trajectory& traj, const fs::path& file) {
+  std::vector<TimedPose> out;
+  out.reserve(traj.size());
+  for (size_t i = 0; i < traj.size(); ++i) {
+    if (i > 0 && !(traj[i].timestamp > traj[i - 1].timestamp))
+      fail("{}: data line {}: timestamp {:.9f} is not after the previous one ({:.9f}); timestamps must increase",
+           file.string(), i + 1, traj[i].timestamp, traj[i - 1].timestamp);
+    out.push_back({traj[i].timestamp, traj[i].pose});
+  }
+  return out;
+}
+
+std::optional<SE3> nearestPose(const std::vector<TimedPose>& traj, double t, double tol) {
+  if (traj.empty()) return std::nullopt;
+  auto it = std::lower_bound(traj.begin(), traj.end(), t, [](const TimedPose& p, double x) { return p.t < x; });
+  const TimedPose* best = nullptr;
+  if (it != traj.end()) best = &*it;
+  if (it != traj.begin()) {
+    const TimedPose* prev = &*(it - 1);
+    if (!best || std::abs(prev->t - t) <= std::abs(best->t - t)) best = prev;
+  }
+  if (best && std::abs(best->t - t) <= tol) return best->pose;
+  return std::nullopt;
+}
+
+std::optional<SE3> interpolatePose(const std::vector<TimedPose>& traj, double t, double tol) {
+  auto it = std::lower_bound(traj.begin(), traj.end(), t, [](const TimedPose& p, double x) { return p.t < x; });
+  if (it != traj.end() && it != traj.begin()) {
+    const TimedPose& a = *(it - 1);
+    const TimedPose& b = *it;
+    if (b.t - a.t <= 2 * tol) return SE3::interpolate(a.pose, b.pose, (t - a.t) / (b.t - a.t));
+  }
+  return nearestPose(traj, t, tol);
+}
+
+std::optional<fs::path> resolveImage(const fs::path& path) {
+  std::error_code ec;
+  if (fs::is_regular_file(path, ec)) return path;
+  if (isImageExtension(path)) return std::nullopt;
+  for (const char* ext : {".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}) {
+    fs::path p = path;
+    p += ext;
+    if (fs::is_regular_file(p, ec)) return p;
+  }
+  return std::nullopt;
+}
+
+std::string readYamlText(const fs::path& file) {
+  std::error_code ec;
+  if (!fs::is_regular_file(file, ec)) fail("{}: file not found", file.string());
+  std::ifstream in(file);
+  if (!in) fail("{}: cannot open file", file.string());
+  std::ostringstream os;
+  std::string s;
+  bool first = true;
+  while (std::getline(in, s)) {
+    // OpenCV FileStorage writes "%YAML:1.0", which is not a valid YAML directive.
+    if (first && s.rfind("%YAML", 0) == 0) s = "# " + s;
+    first = false;
+    os << s << '\n';
+  }
+  return os.str();
+}
+
+}  // namespace nerfslam::io_detail
