@@ -1,0 +1,98 @@
+#include "nerfslam/tracking/frame.h"
+
+#include <gtest/gtest.h>
+
+#include <opencv2/features2d.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "test_support.h"
+
+namespace nerfslam {
+namespace {
+
+Camera tsukubaCamera() { return Camera::pinhole(640, 480, 615, 615, 320, 240); }
+
+// Fraction of an nx x ny grid over the image that holds at least one keypoint.
+double coverage(const Frame& f, int nx, int ny) {
+  std::vector<char> hit(static_cast<size_t>(nx * ny), 0);
+  for (const auto& k : f.keypoints)
+    hit[static_cast<size_t>(std::min(ny - 1, static_cast<int>(k.pt.y * ny / f.camera.height)) * nx +
+                            std::min(nx - 1, static_cast<int>(k.pt.x * nx / f.camera.width)))] = 1;
+  int n = 0;
+  for (char h : hit) n += h;
+  return static_cast<double>(n) / (nx * ny);
+}
+
+TEST(Frame, FeaturesSpreadOverRealImageWithConsistentDescriptors) {
+  NERFSLAM_REQUIRE_DATA(dir, "new_tsukuba_150");
+  const cv::Mat img = cv::imread((dir / "images/rgb_00000.png").string(), cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(img.empty());
+  FeatureOptions opt;
+  const Frame f = extractFrame(img, tsukubaCamera(), opt, 7, 0.5);
+  EXPECT_EQ(f.id, 7u);
+  EXPECT_GT(f.size(), 0.8 * opt.max_features);
+  EXPECT_LE(f.size(), static_cast<size_t>(opt.max_features) + 8);
+  EXPECT_EQ(f.descriptors.rows, static_cast<int>(f.size()));
+  EXPECT_EQ(f.descriptors.cols, 32);
+  EXPECT_EQ(f.pyramid.size(), static_cast<size_t>(opt.num_levels));
+  EXPECT_GT(coverage(f, 8, 6), 0.85);
+  std::vector<int> per_level(f.pyramid.size(), 0);
+  for (const auto& k : f.keypoints) ++per_level[static_cast<size_t>(k.octave)];
+  for (int n : per_level) EXPECT_GT(n, 20);
+
+  // Level-0 descriptors equal OpenCV's ORB on the same keypoints and orientations.
+  std::vector<cv::KeyPoint> kps;
+  std::vector<int> idx;
+  for (size_t i = 0; i < f.size(); ++i)
+    if (f.keypoints[i].octave == 0) {
+      kps.push_back(f.keypoints[i]);
+      kps.back().class_id = static_cast<int>(i);
+      idx.push_back(static_cast<int>(i));
+    }
+  cv::Mat desc;
+  cv::ORB::create(500, 1.2f, 1, 19, 0, 2, cv::ORB::HARRIS_SCORE, 31)->compute(img, kps, desc);
+  ASSERT_EQ(kps.size(), idx.size());
+  for (size_t j = 0; j < kps.size(); ++j)
+    EXPECT_EQ(descriptorDistance(desc.ptr<uint8_t>(static_cast<int>(j)), f.descriptors.ptr<uint8_t>(kps[j].class_id)),
+              0);
+
+  // featuresInArea agrees with brute force.
+  const Eigen::Vector2d c(300, 200);
+  std::vector<int> brute;
+  for (size_t i = 0; i < f.size(); ++i)
+    if ((Eigen::Vector2d(f.keypoints[i].pt.x, f.keypoints[i].pt.y) - c).norm() <= 37.0) brute.push_back(int(i));
+  std::vector<int> grid = f.featuresInArea(c, 37.0);
+  std::sort(grid.begin(), grid.end());
+  EXPECT_EQ(grid, brute);
+}
+
+TEST(Frame, AdaptiveThresholdKeepsFeaturesInLowContrast) {
+  NERFSLAM_REQUIRE_DATA(dir, "new_tsukuba_150");
+  cv::Mat img = cv::imread((dir / "images/rgb_00000.png").string(), cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(img.empty());
+  cv::Mat low;
+  img.convertTo(low, CV_8U, 0.3, 90);  // 3.3x less contrast
+  FeatureOptions opt;
+  const Frame f = extractFrame(low, tsukubaCamera(), opt);
+  std::vector<cv::KeyPoint> fixed;
+  cv::FAST(low, fixed, opt.fast_threshold, true);
+  EXPECT_GT(f.size(), 0.5 * opt.max_features);
+  EXPECT_GT(f.size(), 2 * fixed.size());  // a fixed threshold finds far fewer corners
+  // Spread stays close to the full-contrast image's.
+  const Frame full = extractFrame(img, tsukubaCamera(), opt);
+  EXPECT_GT(coverage(f, 8, 6), 0.8 * coverage(full, 8, 6));
+  std::printf("coverage full %.3f low %.3f; features low %zu, fixed-threshold FAST %zu\n", coverage(full, 8, 6),
+              coverage(f, 8, 6), f.size(), fixed.size());
+}
+
+TEST(Frame, RejectsBadInput) {
+  const Camera cam = tsukubaCamera();
+  EXPECT_THROW(extractFrame(cv::Mat(), cam, {}), std::exception);
+  EXPECT_THROW(extractFrame(cv::Mat(100, 100, CV_8U, cv::Scalar(0)), cam, {}), std::exception);
+  const Frame blank = extractFrame(cv::Mat(480, 640, CV_8U, cv::Scalar(128)), cam, {});
+  EXPECT_EQ(blank.size(), 0u);
+  EXPECT_TRUE(blank.featuresInArea(Eigen::Vector2d(10, 10), 50).empty());
+}
+
+}  // namespace
+}  // namespace nerfslam
