@@ -1,0 +1,528 @@
+// RadianceField: parameters, tiled forward/backward over the hash encoding and the two MLPs, and
+// the deterministic sparse optimiser step. The kernels are in hash_grid.cpp, mlp.cpp, adam.cpp.
+#include "nerfslam/nerf/field.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <thread>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/nerf/hash_grid.h"
+#include "nerfslam/nerf/mlp.h"
+#include "nerfslam/nerf/sh.h"
+
+namespace nerfslam::nerf {
+
+namespace {
+
+// Samples per tile: every layer of a tile runs before the next tile, so the tile's activations
+// stay in L1/L2 between layers.
+constexpr size_t kTile = 64;
+constexpr int kColorIn = kShCoeffs + kDensityOutputs;  // 32
+constexpr int kColorOutPadded = 16;
+
+std::string configFile() { return "field config"; }
+
+}  // namespace
+
+namespace {
+// Applies every visit() constraint; nested sections are prefixed "section.field".
+struct CheckVisitor {
+  std::string prefix;
+  template <class T, class C>
+  void operator()(const char* name, T& value, const char*, C check) {
+    const std::string why = check(value);
+    if (!why.empty()) throw fieldError(configFile(), prefix + name, why);
+  }
+  template <class T>
+  void operator()(const char* name, T& section, const char*) {
+    CheckVisitor sub{prefix + name + "."};
+    section.visit(sub);
+  }
+};
+}  // namespace
+
+void validate(const FieldConfig& config) {
+  FieldConfig c = config;
+  CheckVisitor v;
+  c.visit(v);
+  auto bad = [](const std::string& field, const std::string& what) { throw fieldError(configFile(), field, what); };
+  if (c.n_levels % 8 != 0) bad("n_levels", "must be a multiple of 8");
+  if (c.hidden % 16 != 0) bad("hidden", "must be a multiple of 16");
+  if (c.finest_resolution < c.base_resolution) bad("finest_resolution", "must be >= base_resolution");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parameter layout.
+
+struct RadianceField::Impl {
+  FieldConfig cfg;
+  std::vector<GridLevel> levels;
+  size_t n_entries = 0;  // hash entries over all levels
+  int n_enc = 0;         // encoding width = 2 * n_levels
+  int H = 0;
+
+  // Hash grid: params, Adam moments and per-entry step counters.
+  HugeVector<float> table, table_m, table_v;
+  HugeVector<uint32_t> table_steps;
+  // MLP weights, concatenated: d0 [n_enc][H], d1 [H][16], c0 [32][H], c1 [H][H], c2 [H][16].
+  std::vector<float> mlp, mlp_m, mlp_v, mlp_grad_sum;
+  size_t off_d0 = 0, off_d1 = 0, off_c0 = 0, off_c1 = 0, off_c2 = 0, n_mlp = 0;
+  // Transposed copies [out][in] for the backward-data products.
+  std::vector<float> mlp_t;
+  // MLP step count as low/high 32-bit words (exposed to the model file as "adam.mlp_step").
+  uint32_t mlp_step_words[2] = {0, 0};
+  uint64_t mlpStep() const { return uint64_t(mlp_step_words[0]) | (uint64_t(mlp_step_words[1]) << 32); }
+  void setMlpStep(uint64_t t) {
+    mlp_step_words[0] = uint32_t(t & 0xffffffffu);
+    mlp_step_words[1] = uint32_t(t >> 32);
+  }
+  AdamBiasTable bias;
+
+  explicit Impl(const FieldConfig& c) : cfg(c), bias(c.adam) {}
+
+  const float* W(size_t off) const { return mlp.data() + off; }
+  const float* WT(size_t off) const { return mlp_t.data() + off; }
+
+  HashGridView grid() const { return {levels.data(), int(levels.size()), table.data()}; }
+
+  void refreshTransposed() {
+    mlp_t.resize(n_mlp);
+    auto tr = [&](size_t off, size_t in, size_t out) {
+      for (size_t i = 0; i < in; ++i)
+        for (size_t o = 0; o < out; ++o) mlp_t[off + o * in + i] = mlp[off + i * out + o];
+    };
+    tr(off_d0, size_t(n_enc), size_t(H));
+    tr(off_d1, size_t(H), kDensityOutputs);
+    tr(off_c0, kColorIn, size_t(H));
+    tr(off_c1, size_t(H), size_t(H));
+    tr(off_c2, size_t(H), kColorOutPadded);
+  }
+};
+
+struct RadianceField::Workspace::Impl {
+  size_t n = 0;
+  std::vector<float> pos, enc /*[tile][n_enc][kTile]*/, h1 /*[n][H]*/, cin /*[n][32]*/, c1 /*[n][H]*/, c2 /*[n][H]*/,
+      rgb /*[n][3]*/, sigma /*[n]*/, logd /*[n]*/;
+  // Per-tile backward scratch.
+  std::vector<float> dlog, dc2, dc1, dd, dh1, denc;
+};
+
+struct RadianceField::Gradients::Impl {
+  std::vector<float> mlp;
+  HugeVector<float> table;        // 2 per entry
+  std::vector<uint64_t> touched;  // 1 bit per entry
+};
+
+RadianceField::Workspace::Workspace() : impl_(std::make_unique<Impl>()) {}
+RadianceField::Workspace::~Workspace() = default;
+RadianceField::Workspace::Workspace(Workspace&&) noexcept = default;
+RadianceField::Workspace& RadianceField::Workspace::operator=(Workspace&&) noexcept = default;
+RadianceField::Gradients::Gradients() : impl_(std::make_unique<Impl>()) {}
+RadianceField::Gradients::~Gradients() = default;
+RadianceField::Gradients::Gradients(Gradients&&) noexcept = default;
+RadianceField::Gradients& RadianceField::Gradients::operator=(Gradients&&) noexcept = default;
+
+RadianceField::~RadianceField() = default;
+RadianceField::RadianceField(RadianceField&&) noexcept = default;
+RadianceField& RadianceField::operator=(RadianceField&&) noexcept = default;
+
+RadianceField::RadianceField(const FieldConfig& config, uint64_t seed) {
+  validate(config);
+  impl_ = std::make_unique<Impl>(config);
+  Impl& f = *impl_;
+  f.levels = gridLevels(config.n_levels, config.base_resolution, config.finest_resolution, config.log2_hashmap_size);
+  f.n_entries = f.levels.back().offset + size_t(f.levels.back().size);
+  f.n_enc = 2 * config.n_levels;
+  f.H = config.hidden;
+  const size_t H = size_t(f.H);
+
+  std::mt19937_64 rng(seed);
+  // 24 random bits -> uniform in [-r, r] (explicit, so the stream is the same on every platform).
+  auto uniform = [&](double r) {
+    const double u = double(rng() >> 40) / double(1 << 24);
+    return float((2.0 * u - 1.0) * r);
+  };
+  f.table.resize(2 * f.n_entries);
+  for (float& x : f.table) x = uniform(config.hash_init_range);
+  f.table_m.assign(f.table.size(), 0.f);
+  f.table_v.assign(f.table.size(), 0.f);
+  f.table_steps.assign(f.n_entries, 0u);
+
+  f.off_d0 = 0;
+  f.off_d1 = f.off_d0 + size_t(f.n_enc) * H;
+  f.off_c0 = f.off_d1 + H * kDensityOutputs;
+  f.off_c1 = f.off_c0 + size_t(kColorIn) * H;
+  f.off_c2 = f.off_c1 + H * H;
+  f.n_mlp = f.off_c2 + H * kColorOutPadded;
+  f.mlp.assign(f.n_mlp, 0.f);
+  // Xavier-uniform (tiny-cuda-nn's default): U(-s, s), s = sqrt(6 / (fan_in + fan_out)).
+  auto init = [&](size_t off, size_t in, size_t out, size_t used_out) {
+    const double s = std::sqrt(6.0 / double(in + used_out));
+    for (size_t i = 0; i < in; ++i)
+      for (size_t o = 0; o < used_out; ++o) f.mlp[off + i * out + o] = uniform(s);
+  };
+  init(f.off_d0, size_t(f.n_enc), H, H);
+  init(f.off_d1, H, kDensityOutputs, kDensityOutputs);
+  init(f.off_c0, kColorIn, H, H);
+  init(f.off_c1, H, H, H);
+  init(f.off_c2, H, kColorOutPadded, 3);
+  f.mlp_m.assign(f.n_mlp, 0.f);
+  f.mlp_v.assign(f.n_mlp, 0.f);
+  f.mlp_grad_sum.assign(f.n_mlp, 0.f);
+  f.refreshTransposed();
+}
+
+const FieldConfig& RadianceField::config() const { return impl_->cfg; }
+uint64_t RadianceField::stepCount() const { return impl_->mlpStep(); }
+size_t RadianceField::numParameters() const { return impl_->table.size() + impl_->n_mlp; }
+
+// ---------------------------------------------------------------------------------------------
+// Layer helpers over one tile of m samples.
+
+namespace {
+
+GemmArgs mm(size_t M, size_t N, size_t K, const float* a, size_t a_ms, size_t a_ks, const float* b, size_t ldb,
+            float* c, size_t ldc, Epilogue e = Epilogue::kNone, const float* mask = nullptr, size_t ldm = 0,
+            bool accumulate = false) {
+  GemmArgs g;
+  g.M = M;
+  g.N = N;
+  g.K = K;
+  g.a = a;
+  g.a_ms = a_ms;
+  g.a_ks = a_ks;
+  g.b = b;
+  g.ldb = ldb;
+  g.c = c;
+  g.ldc = ldc;
+  g.epilogue = e;
+  g.mask = mask;
+  g.ldm = ldm;
+  g.accumulate = accumulate;
+  return g;
+}
+
+inline float sigmoid(float x) { return 1.f / (1.f + std::exp(-x)); }
+
+}  // namespace
+
+// Density network on a tile: encT [n_enc][kTile] -> h1 [m][H] (ReLU) -> d [m][ldd].
+static void densityTile(const RadianceField::Impl& f, size_t m, const float* encT, float* h1, float* d, size_t ldd) {
+  const size_t H = size_t(f.H);
+  gemm(mm(m, H, size_t(f.n_enc), encT, 1, kTile, f.W(f.off_d0), H, h1, H, Epilogue::kRelu));
+  gemm(mm(m, kDensityOutputs, H, h1, H, 1, f.W(f.off_d1), kDensityOutputs, d, ldd));
+}
+
+// Colour network on a tile: cin [m][32] -> c1, c2 [m][H] -> logits [m][16].
+static void colorTile(const RadianceField::Impl& f, size_t m, const float* cin, float* c1, float* c2, float* logits) {
+  const size_t H = size_t(f.H);
+  gemm(mm(m, H, kColorIn, cin, kColorIn, 1, f.W(f.off_c0), H, c1, H, Epilogue::kRelu));
+  gemm(mm(m, H, H, c1, H, 1, f.W(f.off_c1), H, c2, H, Epilogue::kRelu));
+  gemm(mm(m, kColorOutPadded, H, c2, H, 1, f.W(f.off_c2), kColorOutPadded, logits, kColorOutPadded));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Inference.
+
+void RadianceField::queryDensity(const float* pos, size_t n, float* sigma) const {
+  const Impl& f = *impl_;
+  const size_t H = size_t(f.H);
+  std::vector<float> encT(size_t(f.n_enc) * kTile), h1(kTile * H), d(kTile * kDensityOutputs);
+  const float clampv = float(f.cfg.max_log_density);
+  for (size_t s0 = 0; s0 < n; s0 += kTile) {
+    const size_t m = std::min(kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
+    densityTile(f, m, encT.data(), h1.data(), d.data(), kDensityOutputs);
+    for (size_t i = 0; i < m; ++i) sigma[s0 + i] = std::exp(std::min(d[i * kDensityOutputs], clampv));
+  }
+}
+
+void RadianceField::query(const float* pos, const float* dir, size_t n, float* sigma, float* rgb) const {
+  const Impl& f = *impl_;
+  const size_t H = size_t(f.H);
+  std::vector<float> encT(size_t(f.n_enc) * kTile), h1(kTile * H), cin(kTile * kColorIn), c1(kTile * H), c2(kTile * H),
+      logits(kTile * kColorOutPadded);
+  const float clampv = float(f.cfg.max_log_density);
+  for (size_t s0 = 0; s0 < n; s0 += kTile) {
+    const size_t m = std::min(kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
+    densityTile(f, m, encT.data(), h1.data(), cin.data() + kShCoeffs, kColorIn);
+    shEncodeBatch(dir + 3 * s0, m, cin.data(), kColorIn);
+    colorTile(f, m, cin.data(), c1.data(), c2.data(), logits.data());
+    for (size_t i = 0; i < m; ++i) {
+      if (sigma) sigma[s0 + i] = std::exp(std::min(cin[i * kColorIn + kShCoeffs], clampv));
+      if (rgb)
+        for (int k = 0; k < 3; ++k) rgb[3 * (s0 + i) + size_t(k)] = sigmoid(logits[i * kColorOutPadded + size_t(k)]);
+    }
+  }
+}
+
+void RadianceField::densityGradient(const float* pos, size_t n, float* grad) const {
+  const Impl& f = *impl_;
+  const size_t H = size_t(f.H), E = size_t(f.n_enc);
+  std::vector<float> encT(E * kTile), h1(kTile * H), d(kTile * kDensityOutputs), dd(kTile * kDensityOutputs),
+      dh1(kTile * H), denc(kTile * E);
+  const float clampv = float(f.cfg.max_log_density);
+  for (size_t s0 = 0; s0 < n; s0 += kTile) {
+    const size_t m = std::min(kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
+    densityTile(f, m, encT.data(), h1.data(), d.data(), kDensityOutputs);
+    std::fill(dd.begin(), dd.end(), 0.f);
+    // trunc_exp: d sigma / d log-density = exp(min(x, clamp)) = sigma.
+    for (size_t i = 0; i < m; ++i) dd[i * kDensityOutputs] = std::exp(std::min(d[i * kDensityOutputs], clampv));
+    gemm(mm(m, H, kDensityOutputs, dd.data(), kDensityOutputs, 1, f.WT(f.off_d1), H, dh1.data(), H, Epilogue::kReluMask,
+            h1.data(), H));
+    gemm(mm(m, E, H, dh1.data(), H, 1, f.WT(f.off_d0), E, denc.data(), E));
+    hashEncodePositionGradient(f.grid(), pos + 3 * s0, m, denc.data(), grad + 3 * s0);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Training.
+
+RadianceField::Workspace RadianceField::makeWorkspace() const { return Workspace(); }
+
+RadianceField::Gradients RadianceField::makeGradients() const {
+  Gradients g;
+  g.impl_->mlp.assign(impl_->n_mlp, 0.f);
+  g.impl_->table.assign(impl_->table.size(), 0.f);
+  g.impl_->touched.assign((impl_->n_entries + 63) / 64, 0u);
+  return g;
+}
+
+void RadianceField::forward(Workspace& wsp, const float* pos, const float* dir, size_t n, float* sigma,
+                            float* rgb) const {
+  const Impl& f = *impl_;
+  Workspace::Impl& ws = *wsp.impl_;
+  const size_t H = size_t(f.H), E = size_t(f.n_enc);
+  const size_t n_tiles = (n + kTile - 1) / kTile;
+  ws.n = n;
+  ws.pos.assign(pos, pos + 3 * n);
+  auto grow = [](std::vector<float>& v, size_t size) {
+    if (v.size() < size) v.resize(size);
+  };
+  grow(ws.enc, n_tiles * E * kTile);
+  grow(ws.h1, n * H);
+  grow(ws.cin, n * kColorIn);
+  grow(ws.c1, n * H);
+  grow(ws.c2, n * H);
+  grow(ws.rgb, n * 3);
+  grow(ws.sigma, n);
+  grow(ws.logd, n);
+  std::vector<float>& logits = ws.dlog;  // scratch; backward overwrites it
+  grow(logits, kTile * kColorOutPadded);
+  const float clampv = float(f.cfg.max_log_density);
+  for (size_t t = 0; t < n_tiles; ++t) {
+    const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
+    float* encT = ws.enc.data() + t * E * kTile;
+    float* cin = ws.cin.data() + s0 * kColorIn;
+    hashEncode(f.grid(), pos + 3 * s0, m, encT, kTile);
+    densityTile(f, m, encT, ws.h1.data() + s0 * H, cin + kShCoeffs, kColorIn);
+    shEncodeBatch(dir + 3 * s0, m, cin, kColorIn);
+    colorTile(f, m, cin, ws.c1.data() + s0 * H, ws.c2.data() + s0 * H, logits.data());
+    for (size_t i = 0; i < m; ++i) {
+      const float ld = cin[i * kColorIn + kShCoeffs];
+      ws.logd[s0 + i] = ld;
+      ws.sigma[s0 + i] = std::exp(std::min(ld, clampv));
+      for (size_t k = 0; k < 3; ++k) ws.rgb[3 * (s0 + i) + k] = sigmoid(logits[i * kColorOutPadded + k]);
+    }
+  }
+  if (sigma) std::copy(ws.sigma.begin(), ws.sigma.begin() + long(n), sigma);
+  if (rgb) std::copy(ws.rgb.begin(), ws.rgb.begin() + long(3 * n), rgb);
+}
+
+void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float* dL_drgb, Gradients& grads) const {
+  const Impl& f = *impl_;
+  Workspace::Impl& ws = *wsp.impl_;
+  Gradients::Impl& g = *grads.impl_;
+  if (g.table.size() != f.table.size() || g.mlp.size() != f.n_mlp)
+    fail("RadianceField::backward: gradients were not made by this field");
+  const size_t n = ws.n, H = size_t(f.H), E = size_t(f.n_enc);
+  const size_t n_tiles = (n + kTile - 1) / kTile;
+  auto grow = [](std::vector<float>& v, size_t size) {
+    if (v.size() < size) v.resize(size);
+  };
+  grow(ws.dlog, kTile * kColorOutPadded);
+  grow(ws.dc2, kTile * H);
+  grow(ws.dc1, kTile * H);
+  grow(ws.dd, kTile * kDensityOutputs);
+  grow(ws.dh1, kTile * H);
+  grow(ws.denc, kTile * E);
+  float* gw = g.mlp.data();
+  for (size_t t = 0; t < n_tiles; ++t) {
+    const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
+    const float* encT = ws.enc.data() + t * E * kTile;
+    const float* h1 = ws.h1.data() + s0 * H;
+    const float* cin = ws.cin.data() + s0 * kColorIn;
+    const float* c1 = ws.c1.data() + s0 * H;
+    const float* c2 = ws.c2.data() + s0 * H;
+    // Output activations.
+    float* dlog = ws.dlog.data();
+    std::fill(dlog, dlog + m * kColorOutPadded, 0.f);
+    bool any_rgb = false;
+    if (dL_drgb) {
+      for (size_t i = 0; i < m; ++i)
+        for (size_t k = 0; k < 3; ++k) {
+          const float y = ws.rgb[3 * (s0 + i) + k];
+          const float d = dL_drgb[3 * (s0 + i) + k] * y * (1.f - y);
+          dlog[i * kColorOutPadded + k] = d;
+          any_rgb |= d != 0.f;
+        }
+    }
+    float* dd = ws.dd.data();
+    if (any_rgb) {
+      // Colour network.
+      gemm(mm(H, kColorOutPadded, m, c2, 1, H, dlog, kColorOutPadded, gw + f.off_c2, kColorOutPadded, Epilogue::kNone,
+              nullptr, 0, true));
+      gemm(mm(m, H, kColorOutPadded, dlog, kColorOutPadded, 1, f.WT(f.off_c2), H, ws.dc2.data(), H, Epilogue::kReluMask,
+              c2, H));
+      gemm(mm(H, H, m, c1, 1, H, ws.dc2.data(), H, gw + f.off_c1, H, Epilogue::kNone, nullptr, 0, true));
+      gemm(mm(m, H, H, ws.dc2.data(), H, 1, f.WT(f.off_c1), H, ws.dc1.data(), H, Epilogue::kReluMask, c1, H));
+      gemm(mm(kColorIn, H, m, cin, 1, kColorIn, ws.dc1.data(), H, gw + f.off_c0, H, Epilogue::kNone, nullptr, 0, true));
+      // Only the density-output half of the colour input needs a gradient.
+      gemm(mm(m, kDensityOutputs, H, ws.dc1.data(), H, 1, f.WT(f.off_c0) + kShCoeffs, kColorIn, dd, kDensityOutputs));
+    } else {
+      std::fill(dd, dd + m * kDensityOutputs, 0.f);
+    }
+    if (dL_dsigma) {
+      for (size_t i = 0; i < m; ++i) dd[i * kDensityOutputs] += dL_dsigma[s0 + i] * ws.sigma[s0 + i];  // trunc_exp
+    }
+    // Density network.
+    gemm(mm(H, kDensityOutputs, m, h1, 1, H, dd, kDensityOutputs, gw + f.off_d1, kDensityOutputs, Epilogue::kNone,
+            nullptr, 0, true));
+    gemm(mm(m, H, kDensityOutputs, dd, kDensityOutputs, 1, f.WT(f.off_d1), H, ws.dh1.data(), H, Epilogue::kReluMask, h1,
+            H));
+    gemm(mm(E, H, m, encT, kTile, 1, ws.dh1.data(), H, gw + f.off_d0, H, Epilogue::kNone, nullptr, 0, true));
+    gemm(mm(m, E, H, ws.dh1.data(), H, 1, f.WT(f.off_d0), E, ws.denc.data(), E));
+    hashEncodeBackward(f.grid(), ws.pos.data() + 3 * s0, m, ws.denc.data(), g.table.data(), g.touched.data());
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Optimiser.
+
+void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, int n_threads) {
+  Impl& f = *impl_;
+  for (const Gradients* g : per_thread)
+    if (!g || g->impl_->table.size() != f.table.size() || g->impl_->mlp.size() != f.n_mlp)
+      fail("RadianceField::step: gradients were not made by this field");
+  // MLP: sum in thread order, dense Adam with L2.
+  std::fill(f.mlp_grad_sum.begin(), f.mlp_grad_sum.end(), 0.f);
+  for (Gradients* g : per_thread) {
+    float* src = g->impl_->mlp.data();
+    for (size_t i = 0; i < f.n_mlp; ++i) f.mlp_grad_sum[i] += src[i];
+    std::fill(src, src + f.n_mlp, 0.f);
+  }
+  const uint64_t t_mlp = f.mlpStep() + 1;
+  f.setMlpStep(t_mlp);
+  adamDense(f.mlp.data(), f.mlp_m.data(), f.mlp_v.data(), f.mlp_grad_sum.data(), f.n_mlp, t_mlp, lr, f.cfg.adam,
+            float(f.cfg.adam.mlp_l2));
+  f.refreshTransposed();
+
+  // Hash grid: visit the union of the touched bitmaps word by word; entries are independent, so
+  // any split of the words over workers gives the same result.
+  const size_t n_words = (f.n_entries + 63) / 64;
+  const size_t T = per_thread.size();
+  auto work = [&](size_t w0, size_t w1) {
+    std::vector<float*> tg(T);
+    std::vector<uint64_t*> tb(T);
+    for (size_t t = 0; t < T; ++t) {
+      tg[t] = per_thread[t]->impl_->table.data();
+      tb[t] = per_thread[t]->impl_->touched.data();
+    }
+    for (size_t w = w0; w < w1; ++w) {
+      uint64_t any = 0;
+      for (size_t t = 0; t < T; ++t) any |= tb[t][w];
+      while (any) {
+        const int b = __builtin_ctzll(any);
+        any &= any - 1;
+        const size_t e = w * 64 + size_t(b);
+        float gsum[2] = {0.f, 0.f};
+        for (size_t t = 0; t < T; ++t) {
+          if (!((tb[t][w] >> b) & 1)) continue;
+          gsum[0] += tg[t][2 * e];
+          gsum[1] += tg[t][2 * e + 1];
+          tg[t][2 * e] = 0.f;
+          tg[t][2 * e + 1] = 0.f;
+        }
+        // tiny-cuda-nn skips entries whose summed gradient is exactly zero.
+        if (gsum[0] == 0.f && gsum[1] == 0.f) continue;
+        adamEntry<2>(&f.table[2 * e], &f.table_m[2 * e], &f.table_v[2 * e], gsum, &f.table_steps[e], lr, f.cfg.adam,
+                     f.bias);
+      }
+      for (size_t t = 0; t < T; ++t) tb[t][w] = 0;
+    }
+  };
+  const size_t workers = size_t(std::max(1, n_threads));
+  if (workers == 1 || n_words < 4096) {
+    work(0, n_words);
+  } else {
+    std::vector<std::thread> pool;
+    const size_t chunk = (n_words + workers - 1) / workers;
+    for (size_t i = 1; i < workers; ++i)
+      pool.emplace_back(work, std::min(n_words, i * chunk), std::min(n_words, (i + 1) * chunk));
+    work(0, std::min(n_words, chunk));
+    for (auto& th : pool) th.join();
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parameter access.
+
+std::vector<FloatArray> RadianceField::parameters() {
+  Impl& f = *impl_;
+  const size_t H = size_t(f.H);
+  return {{"hash_grid", f.table.data(), f.table.size()},
+          {"density.w0", f.mlp.data() + f.off_d0, size_t(f.n_enc) * H},
+          {"density.w1", f.mlp.data() + f.off_d1, H * kDensityOutputs},
+          {"color.w0", f.mlp.data() + f.off_c0, size_t(kColorIn) * H},
+          {"color.w1", f.mlp.data() + f.off_c1, H * H},
+          {"color.w2", f.mlp.data() + f.off_c2, H * kColorOutPadded}};
+}
+
+std::vector<FloatArray> RadianceField::gradients(Gradients& grads) const {
+  const Impl& f = *impl_;
+  Gradients::Impl& g = *grads.impl_;
+  const size_t H = size_t(f.H);
+  float* w = g.mlp.data();
+  return {{"hash_grid", g.table.data(), g.table.size()},
+          {"density.w0", w + f.off_d0, size_t(f.n_enc) * H},
+          {"density.w1", w + f.off_d1, H * kDensityOutputs},
+          {"color.w0", w + f.off_c0, size_t(kColorIn) * H},
+          {"color.w1", w + f.off_c1, H * H},
+          {"color.w2", w + f.off_c2, H * kColorOutPadded}};
+}
+
+std::vector<FloatArray> RadianceField::optimizerMoments() {
+  Impl& f = *impl_;
+  std::vector<FloatArray> out;
+  const std::vector<FloatArray> params = parameters();
+  for (const char* which : {"m", "v"}) {
+    const bool is_m = which[0] == 'm';
+    for (const FloatArray& p : params) {
+      float* base;
+      if (p.name == "hash_grid") {
+        base = (is_m ? f.table_m : f.table_v).data();
+      } else {
+        base = (is_m ? f.mlp_m : f.mlp_v).data() + (p.data - f.mlp.data());
+      }
+      out.push_back({std::string("adam.") + which + "." + p.name, base, p.size});
+    }
+  }
+  return out;
+}
+
+std::vector<U32Array> RadianceField::optimizerCounters() {
+  Impl& f = *impl_;
+  return {{"adam.hash_steps", f.table_steps.data(), f.table_steps.size()}, {"adam.mlp_step", f.mlp_step_words, 2}};
+}
+
+void RadianceField::parametersChanged() {
+  Impl& f = *impl_;
+  f.refreshTransposed();
+}
+
+}  // namespace nerfslam::nerf
