@@ -3,10 +3,9 @@
 #include <cstdio>
 #include <map>
 
-#include <spdlog/spdlog.h>
-
 #include "command.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/logging.h"
 
 namespace nerfslam::cli {
 std::vector<CommandSpec>& registry() {
@@ -21,7 +20,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   std::string log_level = "info";
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}));
+      ->check(CLI::IsMember(nerfslam::logLevelNames()));
   auto specs = registry();
   std::sort(specs.begin(), specs.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
   std::map<CLI::App*, Runner> runners;
@@ -34,8 +33,8 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
-  spdlog::set_level(spdlog::level::from_str(log_level));
   try {
+    nerfslam::setupLogging(log_level);
     for (auto& [sub, run] : runners)
       if (sub->parsed()) return run();
   } catch (const nerfslam::Error& e) {

@@ -1,0 +1,289 @@
+// image_folder_publisher: plays any dataset nerfslam reads (image folder, TUM, EuRoC, KITTI,
+// transforms.json, Middlebury, Strecha, New Tsukuba) as a ROS camera.
+//
+// Publishes (in the node's namespace)
+//   image               sensor_msgs/Image through image_transport (mono8, or bgr8 with ~color)
+//   camera_info         sensor_msgs/CameraInfo, same header as the image (image_transport CameraPublisher)
+//   ground_truth_path   nav_msgs/Path (latched), with ~publish_ground_truth and a dataset that has it
+//   /tf                 ~gt_parent_frame -> ~gt_child_frame per frame, with ~publish_ground_truth
+//
+// Parameters (private, all optional except ~dataset; printed at start-up and validated: a bad value
+// or an unreadable dataset is a ROS_FATAL naming the reason, and the node exits with status 1)
+//   ~dataset               string  "[kind:]PATH", kind one of folder tum euroc kitti transforms
+//                                  middlebury strecha tsukuba (detected from the layout when omitted)
+//   ~camera                string  camera YAML (ours or a ROS camera_info YAML) replacing the
+//                                  dataset's calibration; ""  = the dataset's own             (default "")
+//   ~rate                  double  frames per second; 0 = at the dataset's timestamps        (default 0)
+//   ~speed                 double  playback speed factor when ~rate is 0, > 0                 (default 1)
+//   ~loop                  bool    start over after the last frame                           (default false)
+//   ~frame_id              string  header.frame_id of image and camera_info  (default camera_optical_frame)
+//   ~start                 int     frames skipped at the beginning, >= 0                     (default 0)
+//   ~max_frames            int     publish at most this many frames per pass, 0 = all        (default 0)
+//   ~color                 bool    publish bgr8 instead of mono8                              (default false)
+//   ~use_dataset_stamps    bool    header.stamp = dataset timestamp instead of ros::Time::now()
+//                                  at publication (not with ~loop; a frame at t = 0 gets a
+//                                  zero stamp, which ROS reads as "no time")                  (default false)
+//   ~publish_ground_truth  bool    publish ground truth as tf and nav_msgs/Path               (default false)
+//   ~gt_parent_frame       string  parent frame of the ground truth                           (default world)
+//   ~gt_child_frame        string  child frame of the ground-truth camera pose (default camera_ground_truth)
+//   ~wait_for_subscribers  bool    hold the first frame until image and camera_info have a
+//                                  subscriber (for tests and recording)                       (default false)
+//   ~exit_when_done        bool    exit after the last frame instead of idling                (default false)
+// A frame whose image cannot be decoded is reported (ROS_ERROR naming the file) and skipped.
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include <geometry_msgs/PoseStamped.h>
+#include <image_transport/image_transport.h>
+#include <nav_msgs/Path.h>
+#include <ros/ros.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/io/dataset.h"
+#include "nerfslam_ros/conversions.h"
+
+namespace {
+
+struct Params {
+  std::string dataset;
+  std::string camera;
+  double rate = 0.0;
+  double speed = 1.0;
+  bool loop = false;
+  std::string frame_id = "camera_optical_frame";
+  int start = 0;
+  int max_frames = 0;
+  bool color = false;
+  bool use_dataset_stamps = false;
+  bool publish_ground_truth = false;
+  std::string gt_parent_frame = "world";
+  std::string gt_child_frame = "camera_ground_truth";
+  bool wait_for_subscribers = false;
+  bool exit_when_done = false;
+};
+
+const char* const kKnownParams[] = {"dataset",
+                                    "camera",
+                                    "rate",
+                                    "speed",
+                                    "loop",
+                                    "frame_id",
+                                    "start",
+                                    "max_frames",
+                                    "color",
+                                    "use_dataset_stamps",
+                                    "publish_ground_truth",
+                                    "gt_parent_frame",
+                                    "gt_child_frame",
+                                    "wait_for_subscribers",
+                                    "exit_when_done"};
+
+Params readParams(const ros::NodeHandle& pnh) {
+  Params p;
+  pnh.param("dataset", p.dataset, p.dataset);
+  pnh.param("camera", p.camera, p.camera);
+  pnh.param("rate", p.rate, p.rate);
+  pnh.param("speed", p.speed, p.speed);
+  pnh.param("loop", p.loop, p.loop);
+  pnh.param("frame_id", p.frame_id, p.frame_id);
+  pnh.param("start", p.start, p.start);
+  pnh.param("max_frames", p.max_frames, p.max_frames);
+  pnh.param("color", p.color, p.color);
+  pnh.param("use_dataset_stamps", p.use_dataset_stamps, p.use_dataset_stamps);
+  pnh.param("publish_ground_truth", p.publish_ground_truth, p.publish_ground_truth);
+  pnh.param("gt_parent_frame", p.gt_parent_frame, p.gt_parent_frame);
+  pnh.param("gt_child_frame", p.gt_child_frame, p.gt_child_frame);
+  pnh.param("wait_for_subscribers", p.wait_for_subscribers, p.wait_for_subscribers);
+  pnh.param("exit_when_done", p.exit_when_done, p.exit_when_done);
+
+  // Parameters under ~ that we do not know are most likely typos: say so.
+  std::vector<std::string> names;
+  if (ros::param::getParamNames(names)) {
+    const std::string prefix = pnh.getNamespace() + "/";
+    for (const auto& n : names) {
+      if (n.rfind(prefix, 0) != 0) continue;
+      const std::string key = n.substr(prefix.size());
+      if (std::find(std::begin(kKnownParams), std::end(kKnownParams), key) == std::end(kKnownParams))
+        ROS_WARN("unknown parameter ~%s is ignored (see the parameter list in docs/ros.md)", key.c_str());
+    }
+  }
+  return p;
+}
+
+// Returns an empty string when the parameters are valid, else the reason.
+std::string validate(const Params& p) {
+  if (p.dataset.empty()) return "parameter ~dataset is required (\"[kind:]PATH\")";
+  if (!std::isfinite(p.rate) || p.rate < 0.0) return "parameter ~rate must be >= 0 (0 = dataset timestamps)";
+  if (!std::isfinite(p.speed) || p.speed <= 0.0) return "parameter ~speed must be > 0";
+  if (p.start < 0) return "parameter ~start must be >= 0";
+  if (p.max_frames < 0) return "parameter ~max_frames must be >= 0 (0 = all)";
+  if (p.frame_id.empty()) return "parameter ~frame_id must not be empty";
+  if (p.publish_ground_truth && (p.gt_parent_frame.empty() || p.gt_child_frame.empty()))
+    return "parameters ~gt_parent_frame and ~gt_child_frame must not be empty";
+  if (p.publish_ground_truth && p.gt_parent_frame == p.gt_child_frame)
+    return "parameters ~gt_parent_frame and ~gt_child_frame must differ";
+  if (p.use_dataset_stamps && p.loop)
+    return "parameters ~use_dataset_stamps and ~loop cannot be combined (stamps would go back in time)";
+  return "";
+}
+
+void printParams(const Params& p) {
+  ROS_INFO("image_folder_publisher parameters:");
+  ROS_INFO("  ~dataset              = %s", p.dataset.c_str());
+  ROS_INFO("  ~camera               = %s", p.camera.empty() ? "(dataset calibration)" : p.camera.c_str());
+  ROS_INFO("  ~rate                 = %g%s", p.rate, p.rate == 0.0 ? " (dataset timestamps)" : " Hz");
+  ROS_INFO("  ~speed                = %g", p.speed);
+  ROS_INFO("  ~loop                 = %s", p.loop ? "true" : "false");
+  ROS_INFO("  ~frame_id             = %s", p.frame_id.c_str());
+  ROS_INFO("  ~start                = %d", p.start);
+  ROS_INFO("  ~max_frames           = %d%s", p.max_frames, p.max_frames == 0 ? " (all)" : "");
+  ROS_INFO("  ~color                = %s", p.color ? "true (bgr8)" : "false (mono8)");
+  ROS_INFO("  ~use_dataset_stamps   = %s", p.use_dataset_stamps ? "true" : "false");
+  ROS_INFO("  ~publish_ground_truth = %s", p.publish_ground_truth ? "true" : "false");
+  ROS_INFO("  ~gt_parent_frame      = %s", p.gt_parent_frame.c_str());
+  ROS_INFO("  ~gt_child_frame       = %s", p.gt_child_frame.c_str());
+  ROS_INFO("  ~wait_for_subscribers = %s", p.wait_for_subscribers ? "true" : "false");
+  ROS_INFO("  ~exit_when_done       = %s", p.exit_when_done ? "true" : "false");
+}
+
+int run(int argc, char** argv) {
+  ros::init(argc, argv, "image_folder_publisher");
+  ros::NodeHandle nh;
+  ros::NodeHandle pnh("~");
+  const Params p = readParams(pnh);
+  printParams(p);
+  if (const std::string why = validate(p); !why.empty()) {
+    ROS_FATAL("%s", why.c_str());
+    return 1;
+  }
+
+  nerfslam::DatasetOptions opts;
+  if (!p.camera.empty()) opts.camera_override = p.camera;
+  opts.start = static_cast<size_t>(p.start);
+  opts.max_frames = static_cast<size_t>(p.max_frames);
+  std::unique_ptr<nerfslam::Dataset> ds;
+  try {
+    ds = nerfslam::openDataset(p.dataset, opts);
+  } catch (const std::exception& e) {
+    ROS_FATAL("cannot open dataset '%s': %s", p.dataset.c_str(), e.what());
+    return 1;
+  }
+  if (ds->size() == 0) {
+    ROS_FATAL("dataset '%s' has no frames after ~start=%d", p.dataset.c_str(), p.start);
+    return 1;
+  }
+  const nerfslam::Camera& camera = ds->camera();
+  ROS_INFO("dataset: %s (%s), %zu frames, %s ground truth; camera %s", ds->root().c_str(), ds->kind().c_str(),
+           ds->size(), ds->hasGroundTruth() ? "with" : "without", camera.describe().c_str());
+  if (p.publish_ground_truth && !ds->hasGroundTruth())
+    ROS_WARN("~publish_ground_truth is set but the dataset has no ground truth: nothing will be published on tf");
+
+  image_transport::ImageTransport it(nh);
+  image_transport::CameraPublisher cam_pub = it.advertiseCamera("image", 10);
+  ros::Publisher path_pub;
+  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_pub;
+  nav_msgs::Path gt_path;
+  gt_path.header.frame_id = p.gt_parent_frame;
+  if (p.publish_ground_truth) {
+    path_pub = nh.advertise<nav_msgs::Path>("ground_truth_path", 1, /*latch=*/true);
+    tf_pub = std::make_unique<tf2_ros::TransformBroadcaster>();
+  }
+
+  if (p.wait_for_subscribers) {
+    ROS_INFO("waiting for subscribers on %s and %s", cam_pub.getTopic().c_str(), cam_pub.getInfoTopic().c_str());
+    // getNumSubscribers() is the larger of the image and camera_info counts: wait for the first
+    // connection, then give the second one (same subscriber) time to complete.
+    while (ros::ok() && cam_pub.getNumSubscribers() == 0) ros::WallDuration(0.02).sleep();
+    ros::WallDuration(0.5).sleep();
+  }
+
+  const nerfslam::ImageMode mode = p.color ? nerfslam::ImageMode::kColor : nerfslam::ImageMode::kGray;
+  const double t_first = ds->timestamp(0);
+  ros::WallTime t0 = ros::WallTime::now();
+  size_t published = 0, skipped = 0, pass = 0, slot = 0;
+  while (ros::ok()) {
+    const size_t published_before = published;
+    for (size_t i = 0; i < ds->size() && ros::ok(); ++i) {
+      nerfslam::DatasetFrame frame;
+      try {
+        frame = ds->load(i, mode);
+      } catch (const std::exception& e) {
+        ROS_ERROR("skipping frame %zu: %s", i, e.what());
+        ++skipped;
+        ++slot;
+        continue;
+      }
+      // When this frame is due: rate mode counts slots across passes (a skipped frame keeps its
+      // slot); timestamp mode restarts the clock every pass.
+      const double offset = p.rate > 0.0 ? static_cast<double>(slot) / p.rate : (frame.timestamp - t_first) / p.speed;
+      ++slot;
+      const ros::WallTime due = t0 + ros::WallDuration(offset);
+      const ros::WallDuration wait = due - ros::WallTime::now();
+      if (wait > ros::WallDuration(0)) wait.sleep();
+      if (!ros::ok()) break;
+
+      std_msgs::Header header;
+      header.frame_id = p.frame_id;
+      header.stamp = p.use_dataset_stamps ? ros::Time(frame.timestamp) : ros::Time::now();
+      if (p.use_dataset_stamps && header.stamp.isZero())
+        ROS_WARN_ONCE(
+            "frame %zu has timestamp 0: ROS treats a zero stamp as 'no time' (tf returns the latest "
+            "transform); use ~start to skip it or leave ~use_dataset_stamps off",
+            i);
+      header.seq = static_cast<uint32_t>(published);
+      sensor_msgs::ImagePtr img = nerfslam::rosbridge::toImageMsg(frame.image, header);
+      sensor_msgs::CameraInfoPtr info =
+          boost::make_shared<sensor_msgs::CameraInfo>(nerfslam::rosbridge::toCameraInfo(camera, header));
+      cam_pub.publish(img, info);
+      ++published;
+
+      if (p.publish_ground_truth && frame.T_world_cam) {
+        tf_pub->sendTransform(nerfslam::rosbridge::toTransformStamped(*frame.T_world_cam, p.gt_parent_frame,
+                                                                      p.gt_child_frame, header.stamp));
+        geometry_msgs::PoseStamped ps;
+        ps.header.frame_id = p.gt_parent_frame;
+        ps.header.stamp = header.stamp;
+        ps.pose = nerfslam::rosbridge::toPose(*frame.T_world_cam);
+        gt_path.poses.push_back(ps);
+        gt_path.header.stamp = header.stamp;
+        path_pub.publish(gt_path);
+      }
+      ros::spinOnce();
+    }
+    if (!ros::ok()) break;  // interrupted mid-pass
+    if (published == published_before) {
+      ROS_FATAL("no frame of '%s' could be decoded (%zu frames, all skipped)", p.dataset.c_str(), ds->size());
+      return 1;
+    }
+    ++pass;
+    ROS_INFO("pass %zu done: %zu frames published in total, %zu skipped", pass, published, skipped);
+    if (!p.loop) break;
+    if (p.rate == 0.0) {
+      // Next pass one mean frame period after the last frame.
+      const double span = ds->timestamp(ds->size() - 1) - t_first;
+      const double period = ds->size() > 1 ? span / static_cast<double>(ds->size() - 1) : 1.0 / 30.0;
+      t0 += ros::WallDuration((span + period) / p.speed);
+    }
+    gt_path.poses.clear();
+  }
+  if (!p.exit_when_done && ros::ok()) {
+    ROS_INFO("all frames published; idling until shutdown (set ~exit_when_done to exit)");
+    ros::spin();
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& e) {
+    ROS_FATAL("image_folder_publisher: %s", e.what());
+    return 1;
+  }
+}
