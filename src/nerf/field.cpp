@@ -36,6 +36,7 @@ struct CheckVisitor {
     const std::string why = check(value);
     if (!why.empty()) throw fieldError(configFile(), prefix + name, why);
   }
+  void operator()(const char*, bool&, const char*) {}  // unconstrained flag
   template <class T>
   void operator()(const char* name, T& section, const char*) {
     CheckVisitor sub{prefix + name + "."};
@@ -67,6 +68,9 @@ struct RadianceField::Impl {
   // Hash grid: params, Adam moments and per-entry step counters.
   HugeVector<float> table, table_m, table_v;
   HugeVector<uint32_t> table_steps;
+  // Half-precision copy of `table` read by the forward gathers (empty when disabled):
+  // packHalfEntry(&table[2e]) for each entry e.
+  HugeVector<uint32_t> table_half;
   // MLP weights, concatenated: d0 [n_enc][H], d1 [H][16], c0 [32][H], c1 [H][H], c2 [H][16].
   std::vector<float> mlp, mlp_m, mlp_v, mlp_grad_sum;
   size_t off_d0 = 0, off_d1 = 0, off_c0 = 0, off_c1 = 0, off_c2 = 0, n_mlp = 0;
@@ -86,7 +90,14 @@ struct RadianceField::Impl {
   const float* W(size_t off) const { return mlp.data() + off; }
   const float* WT(size_t off) const { return mlp_t.data() + off; }
 
-  HashGridView grid() const { return {levels.data(), int(levels.size()), table.data()}; }
+  HashGridView grid() const {
+    return {levels.data(), int(levels.size()), table.data(), table_half.empty() ? nullptr : table_half.data()};
+  }
+  void refreshHalf() {
+    if (!cfg.half_precision_table) return;
+    table_half.resize(n_entries);
+    packHalfTable(table.data(), n_entries, table_half.data());
+  }
 
   void refreshTransposed() {
     mlp_t.resize(n_mlp);
@@ -150,6 +161,7 @@ RadianceField::RadianceField(const FieldConfig& config, uint64_t seed) {
   f.table_m.assign(f.table.size(), 0.f);
   f.table_v.assign(f.table.size(), 0.f);
   f.table_steps.assign(f.n_entries, 0u);
+  f.refreshHalf();
 
   f.off_d0 = 0;
   f.off_d1 = f.off_d0 + size_t(f.n_enc) * H;
@@ -426,6 +438,7 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
   // any split of the words over workers gives the same result.
   const size_t n_words = (f.n_entries + 63) / 64;
   const size_t T = per_thread.size();
+  const bool half = !f.table_half.empty();
   auto work = [&](size_t w0, size_t w1) {
     std::vector<float*> tg(T);
     std::vector<uint64_t*> tb(T);
@@ -452,6 +465,7 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
         if (gsum[0] == 0.f && gsum[1] == 0.f) continue;
         adamEntry<2>(&f.table[2 * e], &f.table_m[2 * e], &f.table_v[2 * e], gsum, &f.table_steps[e], lr, f.cfg.adam,
                      f.bias);
+        if (half) f.table_half[e] = packHalfEntry(&f.table[2 * e]);
       }
       for (size_t t = 0; t < T; ++t) tb[t][w] = 0;
     }
@@ -523,6 +537,7 @@ std::vector<U32Array> RadianceField::optimizerCounters() {
 void RadianceField::parametersChanged() {
   Impl& f = *impl_;
   f.refreshTransposed();
+  f.refreshHalf();
 }
 
 }  // namespace nerfslam::nerf

@@ -111,7 +111,10 @@ HWY_INLINE void LoadPositions(const float* pos, size_t s, size_t lanes, float* x
 // hashed levels (dense levels are small and cache-resident). With pi_1 = 1 the x-neighbours of a
 // corner usually share its cache line, so corners 0, 2, 4, 6 cover a cell. The hashed levels are
 // random accesses into tables larger than L2: without this the gathers wait on memory serially.
-HWY_INLINE void PrefetchChunk(const HashGridView& grid, const float* base, const float* pos, size_t s, size_t n) {
+// `base` is the table being read or written, `entry_bytes` the bytes of one entry (8 for the fp32
+// tables, 4 for the half-precision copy).
+HWY_INLINE void PrefetchChunk(const HashGridView& grid, const void* base, size_t entry_bytes, const float* pos,
+                              size_t s, size_t n) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
   const size_t N = hn::Lanes(df);
@@ -126,10 +129,10 @@ HWY_INLINE void PrefetchChunk(const HashGridView& grid, const float* base, const
     hn::Vec<decltype(du)> idx[8];
     hn::Vec<decltype(df)> w[8];
     CornersVec(df, L, px, py, pz, idx, w);
-    const float* t = base + 2 * size_t(L.offset);
+    const char* t = static_cast<const char*>(base) + entry_bytes * size_t(L.offset);
     for (int c = 0; c < 8; c += 2) {
       hn::Store(idx[c], du, ib);
-      for (size_t j = 0; j < N; ++j) hwy::Prefetch(t + 2 * size_t(ib[j]));
+      for (size_t j = 0; j < N; ++j) hwy::Prefetch(t + entry_bytes * size_t(ib[j]));
     }
   }
 }
@@ -141,9 +144,24 @@ void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float*
   const size_t N = hn::Lanes(df);
   HWY_ALIGN float xs[HWY_MAX_BYTES / 4], ys[HWY_MAX_BYTES / 4], zs[HWY_MAX_BYTES / 4];
   size_t s = 0;
-  PrefetchChunk(grid, grid.table, pos, 0, n);
+  const bool half = grid.table_half != nullptr;
+  const void* src = half ? static_cast<const void*>(grid.table_half) : static_cast<const void*>(grid.table);
+  const size_t entry_bytes = half ? 4 : 8;
+  // Binary16 -> fp32 of the 16-bit value in the low half of each lane (exact): exponent and
+  // mantissa shifted into place and rescaled by 2^112; inf/NaN get the all-ones exponent.
+  const auto k7fff = hn::Set(du, 0x7fffu), k8000 = hn::Set(du, 0x8000u), kInfExp = hn::Set(du, 0x7f800000u);
+  const auto k7bff = hn::Set(di, 0x7bff);
+  const auto k2p112 = hn::Set(df, 0x1p112f);
+  auto halfToFloat = [&](hn::Vec<decltype(du)> h) {
+    const auto a = hn::And(h, k7fff);
+    const auto t = hn::Or(hn::ShiftLeft<13>(a), hn::ShiftLeft<16>(hn::And(h, k8000)));
+    const auto fin = hn::Mul(hn::BitCast(df, t), k2p112);
+    return hn::IfThenElse(hn::RebindMask(df, hn::Gt(hn::BitCast(di, a), k7bff)), hn::BitCast(df, hn::Or(t, kInfExp)),
+                          fin);
+  };
+  PrefetchChunk(grid, src, entry_bytes, pos, 0, n);
   for (; s + N <= n; s += N) {
-    PrefetchChunk(grid, grid.table, pos, s + N, n);
+    PrefetchChunk(grid, src, entry_bytes, pos, s + N, n);
     LoadPositions(pos, s, N, xs, ys, zs);
     const auto px = hn::Load(df, xs), py = hn::Load(df, ys), pz = hn::Load(df, zs);
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -151,12 +169,21 @@ void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float*
       hn::Vec<decltype(du)> idx[8];
       hn::Vec<decltype(df)> w[8];
       CornersVec(df, L, px, py, pz, idx, w);
-      const float* t = grid.table + 2 * size_t(L.offset);
       auto f0 = hn::Zero(df), f1 = hn::Zero(df);
-      for (int c = 0; c < 8; ++c) {
-        const auto i2 = hn::BitCast(di, hn::Add(idx[c], idx[c]));
-        f0 = hn::MulAdd(w[c], hn::GatherIndex(df, t, i2), f0);
-        f1 = hn::MulAdd(w[c], hn::GatherIndex(df, t + 1, i2), f1);
+      if (half) {
+        const uint32_t* t = grid.table_half + size_t(L.offset);
+        for (int c = 0; c < 8; ++c) {
+          const auto h = hn::GatherIndex(du, t, hn::BitCast(di, idx[c]));
+          f0 = hn::MulAdd(w[c], halfToFloat(h), f0);
+          f1 = hn::MulAdd(w[c], halfToFloat(hn::ShiftRight<16>(h)), f1);
+        }
+      } else {
+        const float* t = grid.table + 2 * size_t(L.offset);
+        for (int c = 0; c < 8; ++c) {
+          const auto i2 = hn::BitCast(di, hn::Add(idx[c], idx[c]));
+          f0 = hn::MulAdd(w[c], hn::GatherIndex(df, t, i2), f0);
+          f1 = hn::MulAdd(w[c], hn::GatherIndex(df, t + 1, i2), f1);
+        }
       }
       hn::StoreU(f0, df, enc + size_t(2 * l) * ld + s);
       hn::StoreU(f1, df, enc + size_t(2 * l + 1) * ld + s);
@@ -178,9 +205,9 @@ void HashEncodeBackwardImpl(const HashGridView& grid, const float* pos, size_t n
   HWY_ALIGN uint32_t ib[8][HWY_MAX_BYTES / 4];
   HWY_ALIGN float wb[8][HWY_MAX_BYTES / 4];
   size_t s = 0;
-  PrefetchChunk(grid, grad_table, pos, 0, n);
+  PrefetchChunk(grid, grad_table, 8, pos, 0, n);
   for (; s + N <= n; s += N) {
-    PrefetchChunk(grid, grad_table, pos, s + N, n);
+    PrefetchChunk(grid, grad_table, 8, pos, s + N, n);
     LoadPositions(pos, s, N, xs, ys, zs);
     const auto px = hn::Load(df, xs), py = hn::Load(df, ys), pz = hn::Load(df, zs);
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -244,6 +271,10 @@ std::vector<GridLevel> gridLevels(int n_levels, int base_resolution, double fine
   return levels;
 }
 
+void packHalfTable(const float* table, size_t n_entries, uint32_t* out) {
+  for (size_t e = 0; e < n_entries; ++e) out[e] = packHalfEntry(table + 2 * e);
+}
+
 void hashEncodeScalar(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
   for (size_t s = 0; s < n; ++s) {
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -252,8 +283,8 @@ void hashEncodeScalar(const HashGridView& grid, const float* pos, size_t n, floa
       detail::cellCorners(grid.levels[l], pos + 3 * s, idx, w);
       float f0 = 0.f, f1 = 0.f;
       for (int c = 0; c < 8; ++c) {
-        f0 += w[c] * grid.table[2 * size_t(idx[c])];
-        f1 += w[c] * grid.table[2 * size_t(idx[c]) + 1];
+        f0 += w[c] * gridFeature(grid, idx[c], 0);
+        f1 += w[c] * gridFeature(grid, idx[c], 1);
       }
       enc[size_t(2 * l) * ld + s] = f0;
       enc[size_t(2 * l + 1) * ld + s] = f1;
@@ -292,7 +323,7 @@ void hashEncodePositionGradient(const HashGridView& grid, const float* pos, size
       detail::cellCorners(L, p, idx, w, f);
       const float d0 = d_enc[s * nf + 2 * l], d1 = d_enc[s * nf + 2 * l + 1];
       for (int c = 0; c < 8; ++c) {
-        const float v = d0 * grid.table[2 * size_t(idx[c])] + d1 * grid.table[2 * size_t(idx[c]) + 1];
+        const float v = d0 * gridFeature(grid, idx[c], 0) + d1 * gridFeature(grid, idx[c], 1);
         const float wx = (c & 1) ? f[0] : 1.f - f[0], sx = (c & 1) ? 1.f : -1.f;
         const float wy = (c & 2) ? f[1] : 1.f - f[1], sy = (c & 2) ? 1.f : -1.f;
         const float wz = (c & 4) ? f[2] : 1.f - f[2], sz = (c & 4) ? 1.f : -1.f;
