@@ -1,0 +1,111 @@
+// `nerfslam render-preview`: draw point clouds, trajectories and keyframe frustums to a PNG, headless.
+#include <memory>
+
+#include <spdlog/spdlog.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "command.h"
+#include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/io/trajectory.h"
+#include "nerfslam/render/preview.h"
+
+namespace {
+
+struct PreviewArgs {
+  std::vector<std::string> points;
+  std::vector<std::string> trajectories;
+  std::vector<std::string> keyframes;
+  std::string view;
+  std::string up = "0,0,1";
+  std::string size = "1280x960";
+  std::string out;
+  nerfslam::render::PreviewOptions opts;
+};
+
+const char* kPalette[] = {"red", "green", "blue", "yellow", "magenta", "cyan", "orange", "white"};
+
+std::vector<double> numbers(const std::string& s, const char* what) {
+  std::vector<double> v;
+  size_t start = 0;
+  while (start <= s.size()) {
+    const size_t end = std::min(s.find(',', start), s.size());
+    const std::string item = s.substr(start, end - start);
+    try {
+      size_t p = 0;
+      v.push_back(std::stod(item, &p));
+      if (p != item.size()) throw std::invalid_argument("x");
+    } catch (const std::logic_error&) {
+      nerfslam::fail("{} '{}': '{}' is not a number", what, s, item);
+    }
+    start = end + 1;
+  }
+  return v;
+}
+
+nerfslam::cli::Registrar reg(
+    "render-preview", "Draw point clouds, trajectories and keyframes to a PNG (headless, OSMesa)",
+    [](CLI::App& sub) -> nerfslam::cli::Runner {
+      auto a = std::make_shared<PreviewArgs>();
+      sub.add_option("--points", a->points, "PLY point cloud (sparse or dense; repeatable)");
+      sub.add_option("--trajectory", a->trajectories,
+                     "Trajectory file (TUM/KITTI/EuRoC), optionally FILE:COLOR with a colour name or #rrggbb "
+                     "(repeatable)");
+      sub.add_option("--keyframes", a->keyframes, "Keyframe poses (TUM format) drawn as frustums (repeatable)");
+      sub.add_option("--view", a->view, "Viewpoint \"eye=x,y,z,target=x,y,z\" (default: fit everything)");
+      sub.add_option("--up", a->up, "World up direction x,y,z")->capture_default_str();
+      sub.add_option("--size", a->size, "Image size WxH")->capture_default_str();
+      sub.add_option("--point-size", a->opts.point_size, "Point size in pixels")->capture_default_str();
+      sub.add_option("--frustum-size", a->opts.frustum_size, "Frustum depth in metres (0: automatic)");
+      sub.add_option("--out", a->out, "Output PNG")->required();
+      return [a]() -> int {
+        using namespace nerfslam;
+        using namespace nerfslam::render;
+        PreviewOptions o = a->opts;
+        const auto x = a->size.find_first_of("xX");
+        std::vector<double> wh;
+        if (x != std::string::npos) wh = numbers(a->size.substr(0, x) + "," + a->size.substr(x + 1), "--size");
+        if (wh.size() != 2 || wh[0] != std::floor(wh[0]) || wh[1] != std::floor(wh[1]))
+          fail("--size '{}': expected WIDTHxHEIGHT, e.g. 1280x960", a->size);
+        if (wh[0] < 16 || wh[1] < 16 || wh[0] > 8192 || wh[1] > 8192)
+          fail("--size {}: width and height must be in 16..8192", a->size);
+        o.width = static_cast<int>(wh[0]);
+        o.height = static_cast<int>(wh[1]);
+        const auto up = numbers(a->up, "--up");
+        if (up.size() != 3 || Eigen::Vector3d(up[0], up[1], up[2]).norm() < 1e-9)
+          fail("--up '{}': need a non-zero x,y,z", a->up);
+        o.up = Eigen::Vector3d(up[0], up[1], up[2]);
+        if (!a->view.empty()) {
+          Eigen::Vector3d eye, target;
+          parseView(a->view, &eye, &target);
+          o.eye = eye;
+          o.target = target;
+        }
+        PreviewScene scene;
+        for (const auto& p : a->points) scene.clouds.push_back(loadPointCloudPly(p));
+        for (size_t i = 0; i < a->trajectories.size(); ++i) {
+          std::string file = a->trajectories[i];
+          std::string color = kPalette[i % 8];
+          const auto colon = file.rfind(':');
+          if (colon != std::string::npos && colon + 1 < file.size() && !std::filesystem::exists(file)) {
+            color = file.substr(colon + 1);
+            file = file.substr(0, colon);
+          }
+          PreviewTrajectory t;
+          t.color = parseColor(color);
+          t.label = std::filesystem::path(file).filename().string();
+          for (const auto& e : readTrajectory(file)) t.poses.push_back(e.pose);
+          scene.trajectories.push_back(std::move(t));
+        }
+        for (const auto& k : a->keyframes)
+          for (const auto& e : readTumTrajectory(k)) scene.keyframes.push_back(e.pose);
+        const cv::Mat img = renderPreview(scene, o);
+        AtomicOutput out(a->out);
+        if (!cv::imwrite(out.tempPath().string(), img)) fail("could not write '{}'", a->out);
+        out.commit();
+        spdlog::info("render-preview: wrote {} ({}x{})", a->out, img.cols, img.rows);
+        return 0;
+      };
+    });
+
+}  // namespace

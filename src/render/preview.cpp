@@ -1,0 +1,251 @@
+#include "nerfslam/render/preview.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/conversions.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/point_types.h>
+#include <opencv2/imgproc.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/render/renderer.h"
+#include "nerfslam/render/trajectory.h"
+
+namespace nerfslam::render {
+namespace fs = std::filesystem;
+using Eigen::Vector3d;
+
+PreviewCloud loadPointCloudPly(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) fail("{}: point cloud file not found", path.string());
+  pcl::PCLPointCloud2 blob;
+  pcl::PLYReader reader;
+  if (reader.read(path.string(), blob) < 0) fail("{}: not a readable PLY point cloud", path.string());
+  bool has_rgb = false;
+  for (const auto& f : blob.fields)
+    if (f.name == "rgb" || f.name == "rgba") has_rgb = true;
+  PreviewCloud c;
+  c.label = path.filename().string();
+  if (has_rgb) {
+    pcl::PointCloud<pcl::PointXYZRGB> pc;
+    pcl::fromPCLPointCloud2(blob, pc);
+    for (const auto& p : pc.points)
+      if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) {
+        c.points.emplace_back(p.x, p.y, p.z);
+        c.colors.emplace_back(p.b, p.g, p.r);
+      }
+  } else {
+    pcl::PointCloud<pcl::PointXYZ> pc;
+    pcl::fromPCLPointCloud2(blob, pc);
+    for (const auto& p : pc.points)
+      if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) c.points.emplace_back(p.x, p.y, p.z);
+  }
+  return c;
+}
+
+namespace {
+
+std::vector<double> parseNumbers(const std::string& s, const std::string& what) {
+  std::vector<double> v;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    item.erase(std::remove(item.begin(), item.end(), ' '), item.end());
+    try {
+      size_t p = 0;
+      v.push_back(std::stod(item, &p));
+      if (p != item.size() || !std::isfinite(v.back())) throw std::invalid_argument("bad");
+    } catch (const std::logic_error&) {
+      fail("{}: '{}' is not a number", what, item);
+    }
+  }
+  return v;
+}
+
+Vertex vtx(const Vector3d& p, const cv::Vec3b& bgr) {
+  Vertex v;
+  v.x = static_cast<float>(p.x());
+  v.y = static_cast<float>(p.y());
+  v.z = static_cast<float>(p.z());
+  v.r = bgr[2] / 255.f;
+  v.g = bgr[1] / 255.f;
+  v.b = bgr[0] / 255.f;
+  return v;
+}
+
+}  // namespace
+
+void parseView(const std::string& spec, Eigen::Vector3d* eye, Eigen::Vector3d* target) {
+  // Split at "eye=" and "target=".
+  const auto pe = spec.find("eye="), pt = spec.find("target=");
+  if (pe == std::string::npos || pt == std::string::npos)
+    fail("--view '{}': expected \"eye=x,y,z,target=x,y,z\"", spec);
+  auto part = [&](size_t start, size_t other) {
+    const size_t end = other > start ? other : spec.size();
+    std::string s = spec.substr(start, end - start);
+    while (!s.empty() && (s.back() == ',' || s.back() == ' ' || s.back() == ';')) s.pop_back();
+    return s;
+  };
+  const auto e = parseNumbers(part(pe + 4, pt), "--view eye"), t = parseNumbers(part(pt + 7, pe), "--view target");
+  if (e.size() != 3 || t.size() != 3) fail("--view '{}': eye and target need 3 numbers each", spec);
+  *eye = Vector3d(e[0], e[1], e[2]);
+  *target = Vector3d(t[0], t[1], t[2]);
+  if ((*eye - *target).norm() < 1e-9) fail("--view '{}': eye and target coincide", spec);
+}
+
+cv::Vec3b parseColor(const std::string& name) {
+  static const std::vector<std::pair<std::string, cv::Vec3b>> named = {
+      {"red", {40, 40, 230}},  {"green", {60, 200, 60}},   {"blue", {230, 120, 30}},  {"yellow", {0, 220, 240}},
+      {"cyan", {230, 220, 0}}, {"magenta", {220, 0, 220}}, {"orange", {0, 140, 255}}, {"white", {255, 255, 255}},
+      {"black", {0, 0, 0}},    {"gray", {150, 150, 150}}};
+  for (const auto& [n, c] : named)
+    if (n == name) return c;
+  if (name.size() == 7 && name[0] == '#' && std::all_of(name.begin() + 1, name.end(), [](char ch) {
+        return std::isxdigit(static_cast<unsigned char>(ch));
+      })) {
+    const unsigned long v = std::stoul(name.substr(1), nullptr, 16);
+    return cv::Vec3b(v & 0xff, (v >> 8) & 0xff, (v >> 16) & 0xff);
+  }
+  std::string list;
+  for (const auto& [n, c] : named) list += n + ", ";
+  fail("unknown colour '{}' (valid: {}or #rrggbb)", name, list);
+}
+
+void autoView(const PreviewScene& scene, const PreviewOptions& opts, Vector3d* eye, Vector3d* target) {
+  std::vector<double> xs[3];
+  for (const auto& c : scene.clouds)
+    for (const auto& p : c.points)
+      for (int k = 0; k < 3; ++k) xs[k].push_back(p[k]);
+  Vector3d lo = Vector3d::Constant(1e300), hi = Vector3d::Constant(-1e300);
+  for (int k = 0; k < 3; ++k) {
+    if (xs[k].empty()) continue;
+    auto& v = xs[k];
+    const size_t a = v.size() / 100, b = v.size() - 1 - v.size() / 100;
+    std::nth_element(v.begin(), v.begin() + a, v.end());
+    lo[k] = v[a];
+    std::nth_element(v.begin(), v.begin() + b, v.end());
+    hi[k] = v[b];
+  }
+  auto grow = [&](const Vector3d& p) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  };
+  for (const auto& t : scene.trajectories)
+    for (const auto& p : t.poses) grow(p.translation());
+  for (const auto& p : scene.keyframes) grow(p.translation());
+  if (lo.x() > hi.x()) fail("preview: nothing to draw (no points, trajectories or keyframes)");
+  const Vector3d centre = 0.5 * (lo + hi);
+  const double radius = std::max(0.05, 0.5 * (hi - lo).norm());
+  const Vector3d up = opts.up.normalized();
+  Vector3d side = up.cross(Vector3d::UnitX());
+  if (side.norm() < 0.3) side = up.cross(Vector3d::UnitY());
+  side.normalize();
+  const Vector3d fwd = up.cross(side).normalized();
+  // From the front-left, 35 degrees above the horizon.
+  const Vector3d dir = (std::cos(0.61) * (0.6 * side - 0.8 * fwd).normalized() + std::sin(0.61) * up).normalized();
+  const double half_fov = 0.5 * opts.fov_deg * M_PI / 180.0;
+  *target = centre;
+  *eye = centre + dir * (radius / std::sin(half_fov) * 1.05);
+}
+
+cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
+  if (opts.width < 16 || opts.height < 16 || opts.width > 8192 || opts.height > 8192)
+    fail("preview size {}x{} invalid: width and height must be in 16..8192", opts.width, opts.height);
+  if (!(opts.fov_deg > 1 && opts.fov_deg < 170)) fail("preview fov {} must be in (1, 170) degrees", opts.fov_deg);
+  Vector3d eye, target;
+  autoView(scene, opts, &eye, &target);  // also checks there is something to draw
+  if (opts.eye && opts.target) {
+    eye = *opts.eye;
+    target = *opts.target;
+  }
+  const Vector3d up = opts.up.normalized();
+  double frustum = opts.frustum_size;
+  if (frustum <= 0) {
+    Vector3d e2, t2;
+    autoView(scene, opts, &e2, &t2);
+    frustum = 0.03 * 2.0 * (e2 - t2).norm() * std::sin(0.5 * opts.fov_deg * M_PI / 180.0);
+  }
+
+  Renderer r;
+  for (const auto& c : scene.clouds) {
+    if (c.points.empty()) continue;
+    Mesh m;
+    m.primitive = Primitive::kPoints;
+    double zlo = 1e300, zhi = -1e300;
+    if (c.colors.empty())
+      for (const auto& p : c.points) {
+        const double h = p.cast<double>().dot(up);
+        zlo = std::min(zlo, h), zhi = std::max(zhi, h);
+      }
+    m.vertices.reserve(c.points.size());
+    for (size_t i = 0; i < c.points.size(); ++i) {
+      cv::Vec3b col;
+      if (!c.colors.empty()) {
+        col = c.colors[i];
+      } else {  // height colour map
+        const double s = (c.points[i].cast<double>().dot(up) - zlo) / std::max(1e-9, zhi - zlo);
+        cv::Mat1b in(1, 1, static_cast<uchar>(std::clamp(s, 0.0, 1.0) * 255));
+        cv::Mat out;
+        cv::applyColorMap(in, out, cv::COLORMAP_TURBO);
+        col = out.at<cv::Vec3b>(0, 0);
+      }
+      m.vertices.push_back(vtx(c.points[i].cast<double>(), col));
+    }
+    r.addMesh(m);
+  }
+  Mesh lines;
+  lines.primitive = Primitive::kLines;
+  auto seg = [&](const Vector3d& a, const Vector3d& b, const cv::Vec3b& c) {
+    lines.vertices.push_back(vtx(a, c));
+    lines.vertices.push_back(vtx(b, c));
+  };
+  for (const auto& t : scene.trajectories)
+    for (size_t i = 1; i < t.poses.size(); ++i) seg(t.poses[i - 1].translation(), t.poses[i].translation(), t.color);
+  for (const auto& T : scene.keyframes) {
+    const Vector3d c = T.translation();
+    const double s = frustum, w = 0.5 * s * 4.0 / 3.0 * 0.9, h = 0.5 * s * 0.9;
+    const Vector3d corners[4] = {T * Vector3d(-w, -h, s), T * Vector3d(w, -h, s), T * Vector3d(w, h, s),
+                                 T * Vector3d(-w, h, s)};
+    for (int k = 0; k < 4; ++k) {
+      seg(c, corners[k], scene.keyframe_color);
+      seg(corners[k], corners[(k + 1) % 4], scene.keyframe_color);
+    }
+    seg(corners[0] + (corners[1] - corners[0]) * 0.3, T * Vector3d(0, -h * 1.6, s), scene.keyframe_color);  // "up" tick
+    seg(corners[1] + (corners[0] - corners[1]) * 0.3, T * Vector3d(0, -h * 1.6, s), scene.keyframe_color);
+  }
+  if (!lines.vertices.empty()) r.addMesh(lines);
+
+  const double f = 0.5 * std::min(opts.width, opts.height) / std::tan(0.5 * opts.fov_deg * M_PI / 180.0);
+  const Camera cam = Camera::pinhole(opts.width, opts.height, f, f, 0.5 * (opts.width - 1), 0.5 * (opts.height - 1));
+  RenderOptions ro;
+  const double dist = (eye - target).norm();
+  ro.near = std::max(1e-4, dist * 1e-3);
+  ro.far = std::max(ro.near * 10, dist * 100);
+  ro.background = cv::Vec3f(opts.background[0] / 255.f, opts.background[1] / 255.f, opts.background[2] / 255.f);
+  ro.point_size = opts.point_size;
+  ro.line_width = opts.line_width;
+  cv::Mat img;
+  r.render(cam, lookAt(eye, target, up), &img, nullptr, ro);
+  if (opts.legend) {
+    int y = 24;
+    for (const auto& t : scene.trajectories) {
+      if (t.label.empty()) continue;
+      cv::rectangle(img, {12, y - 12}, {30, y + 2}, cv::Scalar(t.color[0], t.color[1], t.color[2]), cv::FILLED);
+      cv::putText(img, t.label, {38, y}, cv::FONT_HERSHEY_SIMPLEX, 0.55, cv::Scalar(235, 235, 235), 1, cv::LINE_AA);
+      y += 22;
+    }
+    if (!scene.keyframes.empty()) {
+      cv::rectangle(img, {12, y - 12}, {30, y + 2},
+                    cv::Scalar(scene.keyframe_color[0], scene.keyframe_color[1], scene.keyframe_color[2]), 1);
+      cv::putText(img, fmt::format("keyframes ({})", scene.keyframes.size()), {38, y}, cv::FONT_HERSHEY_SIMPLEX, 0.55,
+                  cv::Scalar(235, 235, 235), 1, cv::LINE_AA);
+    }
+  }
+  return img;
+}
+
+}  // namespace nerfslam::render

@@ -1,0 +1,284 @@
+#include "nerfslam/render/trajectory.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "nerfslam/core/error.h"
+
+namespace nerfslam::render {
+using Eigen::Vector2d;
+using Eigen::Vector3d;
+
+namespace {
+
+// Band-limited smooth noise in [-1, 1]: a sum of sinusoids with random frequencies in [f_lo, f_hi]
+// (Hz) and phases; amplitudes sum to 1.
+class SmoothNoise {
+ public:
+  SmoothNoise() = default;
+  SmoothNoise(cv::RNG& rng, double f_lo, double f_hi, int terms = 4) {
+    double total = 0;
+    for (int i = 0; i < terms; ++i) {
+      Term t{rng.uniform(f_lo, f_hi), rng.uniform(0.0, 2 * M_PI), rng.uniform(0.5, 1.0)};
+      total += t.a;
+      terms_.push_back(t);
+    }
+    for (auto& t : terms_) t.a /= total;
+  }
+  double operator()(double t) const {
+    double s = 0;
+    for (const auto& k : terms_) s += k.a * std::sin(2 * M_PI * k.f * t + k.phase);
+    return s;
+  }
+
+ private:
+  struct Term {
+    double f, phase, a;
+  };
+  std::vector<Term> terms_;
+};
+
+struct Noise3 {
+  SmoothNoise x, y, z;
+  Noise3(cv::RNG& rng, double lo, double hi) : x(rng, lo, hi), y(rng, lo, hi), z(rng, lo, hi) {}
+  Vector3d operator()(double t) const { return {x(t), y(t), z(t)}; }
+};
+
+// Hand shake: small rotation (rad) and translation (m) at 4-12 Hz, applied in the camera frame.
+struct Shake {
+  Noise3 rot, trans;
+  double rot_amp, trans_amp;
+  Shake(cv::RNG& rng, double rot_deg, double trans_m)
+      : rot(rng, 4.0, 12.0), trans(rng, 4.0, 12.0), rot_amp(rot_deg * M_PI / 180), trans_amp(trans_m) {}
+  SE3 apply(const SE3& T_world_cam, double t, double gain = 1.0) const {
+    const Vector3d w = rot(t) * rot_amp * gain;
+    const Eigen::Matrix3d R =
+        Eigen::AngleAxisd(w.norm(), w.norm() > 0 ? w.normalized() : Vector3d::UnitZ()).toRotationMatrix();
+    return T_world_cam * SE3(R, trans(t) * trans_amp * gain);
+  }
+};
+
+Vector3d direction(double yaw, double pitch) {
+  return {std::cos(pitch) * std::cos(yaw), std::cos(pitch) * std::sin(yaw), std::sin(pitch)};
+}
+
+// Closed polyline parametrised by arc length, with a smoothed tangent.
+class ClosedPath {
+ public:
+  explicit ClosedPath(std::vector<Vector2d> pts) : pts_(std::move(pts)) {
+    cum_.push_back(0);
+    for (size_t i = 0; i < pts_.size(); ++i)
+      cum_.push_back(cum_.back() + (pts_[(i + 1) % pts_.size()] - pts_[i]).norm());
+  }
+  double length() const { return cum_.back(); }
+  Vector2d at(double s) const {
+    const double L = length();
+    s = std::fmod(s, L);
+    if (s < 0) s += L;
+    const size_t i =
+        std::min<size_t>(std::upper_bound(cum_.begin(), cum_.end(), s) - cum_.begin() - 1, pts_.size() - 1);
+    const double f = (s - cum_[i]) / std::max(1e-12, cum_[i + 1] - cum_[i]);
+    return pts_[i] + f * (pts_[(i + 1) % pts_.size()] - pts_[i]);
+  }
+  Vector2d tangent(double s, double half_window = 0.5) const {
+    return (at(s + half_window) - at(s - half_window)).normalized();
+  }
+
+ private:
+  std::vector<Vector2d> pts_;
+  std::vector<double> cum_;
+};
+
+std::vector<Vector2d> ellipse(const Vector2d& c, double rx, double ry, int n = 72) {
+  std::vector<Vector2d> p;
+  for (int i = 0; i < n; ++i) {
+    const double a = 2 * M_PI * i / n;
+    p.push_back(c + Vector2d(rx * std::cos(a), ry * std::sin(a)));
+  }
+  return p;
+}
+
+Vector2d rot2(const Vector2d& v, double a) {
+  return {std::cos(a) * v.x() - std::sin(a) * v.y(), std::sin(a) * v.x() + std::cos(a) * v.y()};
+}
+
+}  // namespace
+
+const std::vector<std::string>& trajectoryNames() {
+  static const std::vector<std::string> n = {"handheld", "orbit", "forward", "rotation", "fast", "loop"};
+  return n;
+}
+
+std::string defaultTrajectory(const std::string& scene) {
+  if (scene == "turntable") return "orbit";
+  if (scene == "corridor") return "loop";
+  return "handheld";
+}
+
+SE3 lookAt(const Vector3d& eye, const Vector3d& target, const Vector3d& up) {
+  const Vector3d z = (target - eye).normalized();
+  Vector3d x = z.cross(up);
+  if (x.norm() < 1e-9) x = z.cross(Vector3d::UnitX());
+  x.normalize();
+  const Vector3d y = z.cross(x);
+  Eigen::Matrix3d R;
+  R.col(0) = x;
+  R.col(1) = y;
+  R.col(2) = z;
+  return SE3(R, eye);
+}
+
+std::vector<SE3> CameraTrajectory::sample(int frames, double fps) const {
+  std::vector<SE3> out;
+  out.reserve(std::max(0, frames));
+  for (int i = 0; i < frames; ++i) out.push_back(pose(i / fps));
+  return out;
+}
+
+CameraTrajectory makeTrajectory(const Scene& sc, const std::string& name, double duration, uint64_t seed) {
+  const auto& names = trajectoryNames();
+  if (std::find(names.begin(), names.end(), name) == names.end()) {
+    std::string list;
+    for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+    fail("unknown trajectory '{}' (valid trajectories: {})", name, list);
+  }
+  if (!(duration > 0) || !std::isfinite(duration)) duration = 1.0;
+  cv::RNG rng(seed * 0x9E3779B97F4A7C15ull + 12345u);
+  const Vector3d cmin = sc.camera_min, cmax = sc.camera_max;
+  const Vector3d centre = 0.5 * (cmin + cmax), half = 0.5 * (cmax - cmin);
+  const Vector3d focus = sc.focus, anchor = sc.anchor;
+  const double loop_h = sc.loop_height;
+  const bool outward = sc.look_outward;
+  const double sweep = sc.handheld_sweep;
+  const double base_angle = std::atan2(anchor.y() - focus.y(), anchor.x() - focus.x());
+  const double base_radius = std::max(0.3, (anchor - focus).head<2>().norm());
+  const bool has_path = !sc.loop_path.empty();
+  const ClosedPath path(has_path ? sc.loop_path : ellipse(centre.head<2>(), 0.85 * half.x(), 0.85 * half.y()));
+  const double start_s = rng.uniform(0.0, 1.0) * (has_path ? 0.0 : path.length());
+  const double yaw0 = rng.uniform(-M_PI, M_PI);
+
+  if (name == "handheld" || name == "fast") {
+    const bool fast = name == "fast";
+    Noise3 walk(rng, 0.025, 0.09), look(rng, 0.03, 0.11), aim(rng, 0.04, 0.12);
+    Shake shake(rng, fast ? 0.8 : 0.35, fast ? 0.006 : 0.003);
+    // Time warp for bursts: dtau/dt = 1 + 4 sum_k exp(-(t - t_k)^2 / (2 sigma^2)).
+    std::vector<double> bursts;
+    const double sigma = 0.18;
+    if (fast)
+      for (double tb = rng.uniform(0.8, 2.0); tb < duration; tb += rng.uniform(2.0, 4.0)) bursts.push_back(tb);
+    auto tau = [bursts, sigma](double t) {
+      double s = t;
+      for (double tb : bursts)
+        s += 4.0 * sigma * std::sqrt(M_PI / 2) * (std::erf((t - tb) / (sigma * std::sqrt(2.0))) + 1.0);
+      return s;
+    };
+    return CameraTrajectory(name, duration, [=](double t) {
+      const double u = tau(t);
+      const double gain = fast ? 1.0 + 2.0 * (tau(t + 0.01) - tau(t - 0.01)) / 0.02 / 5.0 : 1.0;
+      Vector3d eye, target;
+      if (has_path) {  // walk along the corridor at 0.7 m/s, swaying and looking around
+        const double s = start_s + 0.7 * u;
+        const Vector2d p = path.at(s), tg = path.tangent(s);
+        const Vector2d n(-tg.y(), tg.x());
+        eye << p + 0.3 * walk.x(u) * n, loop_h + 0.15 * walk.z(u);
+        const Vector2d d = rot2(tg, 0.6 * look.x(u));
+        target = eye + direction(std::atan2(d.y(), d.x()), -0.1 + 0.15 * look.y(u));
+      } else if (outward) {
+        eye = centre + half.cwiseProduct(walk(u));
+        target = eye + direction(yaw0 + 2.2 * look.x(u), -0.12 + 0.22 * look.y(u));
+      } else {  // around the object / in front of the plane, at a wandering angle and distance
+        const double a = base_angle + sweep * walk.x(u);
+        const double rad = base_radius * (1.0 + 0.15 * walk.y(u));
+        eye = Vector3d(focus.x() + rad * std::cos(a), focus.y() + rad * std::sin(a), anchor.z() + 0.2 * walk.z(u));
+        target = focus + 0.25 * aim(u);
+      }
+      return shake.apply(lookAt(eye, target), u, gain);
+    });
+  }
+  if (name == "rotation") {  // fixed centre: only R changes (no shake translation)
+    Noise3 look(rng, 0.04, 0.12);
+    const Vector3d eye = anchor;
+    const Vector3d fwd = outward ? direction(yaw0, 0) : (focus - eye).normalized();
+    const double yaw_f = std::atan2(fwd.y(), fwd.x()), pitch_f = std::asin(std::clamp(fwd.z(), -1.0, 1.0));
+    const double yaw_amp = outward ? 1.2 : 0.35;
+    return CameraTrajectory(name, duration, [=](double t) {
+      const Vector3d d = direction(yaw_f + yaw_amp * look.x(t), pitch_f + 0.15 * look.y(t));
+      SE3 T = lookAt(eye, eye + d);
+      const double roll = 0.05 * look.z(t);
+      return SE3(T.rotationMatrix() * Eigen::AngleAxisd(roll, Vector3d::UnitZ()).toRotationMatrix(), eye);
+    });
+  }
+  if (name == "orbit") {
+    SmoothNoise bob(rng, 0.05, 0.15);
+    const double phase = rng.uniform(0.0, 2 * M_PI);
+    const double omega = 2 * M_PI / duration;  // one revolution over the sequence
+    if (outward) {                             // panoramic orbit: small circle around the anchor, looking outwards
+      const Vector3d c = anchor;
+      return CameraTrajectory(name, duration, [=](double t) {
+        const double a = phase + omega * t;
+        const Vector3d eye = c + Vector3d(0.4 * std::cos(a), 0.4 * std::sin(a), 0.1 * bob(t));
+        return lookAt(eye, eye + direction(a, -0.1));
+      });
+    }
+    const Vector3d f = focus;
+    const double radius = std::max(0.3, (anchor - f).head<2>().norm());
+    // A full revolution around objects (turntable); an arc in front of one-sided scenes (plane).
+    const bool full = sweep >= 1.0;
+    return CameraTrajectory(name, duration, [=](double t) {
+      const double a = full ? phase + omega * t : base_angle + 1.5 * sweep * std::sin(omega * t);
+      const Vector3d eye(f.x() + radius * std::cos(a), f.y() + radius * std::sin(a), anchor.z() + 0.15 * bob(t));
+      return lookAt(eye, f);
+    });
+  }
+  if (name == "forward") {
+    Noise3 sway(rng, 0.1, 0.3);
+    if (has_path) {
+      return CameraTrajectory(name, duration, [=](double t) {
+        const double s = start_s + 0.9 * t;
+        const Vector2d p = path.at(s), tg = path.tangent(s);
+        const Vector3d eye(p.x(), p.y(), loop_h + 0.02 * sway.z(t));
+        return lookAt(eye, eye + Vector3d(tg.x(), tg.y(), 0.02 * sway.y(t)));
+      });
+    }
+    if (outward) {  // across the box along x, looking forward
+      return CameraTrajectory(name, duration, [=](double t) {
+        const double s = std::clamp(t / duration, 0.0, 1.0);
+        const Vector3d eye(cmin.x() + s * (cmax.x() - cmin.x()), centre.y() + 0.1 * sway.y(t),
+                           centre.z() + 0.05 * sway.z(t));
+        return lookAt(eye, eye + Vector3d(1.0, 0.05 * sway.x(t), -0.05));
+      });
+    }
+    // Towards the focus from the far side of the camera box, stopping at half the distance.
+    const Vector3d from = anchor;
+    return CameraTrajectory(name, duration, [=](double t) {
+      const double s = std::clamp(t / duration, 0.0, 1.0);
+      const Vector3d eye = from + 0.5 * s * (focus - from) + 0.02 * sway(t);
+      return lookAt(eye, focus + 0.05 * sway(t));
+    });
+  }
+  // loop: once around the closed path; periodic components and an end-vanishing shake make the
+  // last pose equal the first.
+  Shake shake(rng, 0.3, 0.003);
+  const int look_cycles = 2;
+  return CameraTrajectory(name, duration, [=](double t) {
+    const double s01 = t / duration;
+    const double s = start_s + s01 * path.length();
+    const Vector2d p = path.at(s), tg = path.tangent(s);
+    const Vector3d eye(p.x(), p.y(), loop_h + 0.08 * std::sin(2 * M_PI * 3 * s01));
+    Vector3d target;
+    if (outward) {
+      const double yaw = std::atan2(tg.y(), tg.x()) + (has_path ? 0.25 : -0.6) * std::sin(2 * M_PI * look_cycles * s01);
+      target = eye + direction(yaw, -0.08);
+    } else {
+      target = focus;
+    }
+    const double env = std::sin(M_PI * std::clamp(s01, 0.0, 1.0));
+    return shake.apply(lookAt(eye, target), t, env);
+  });
+}
+
+}  // namespace nerfslam::render

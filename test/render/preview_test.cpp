@@ -1,0 +1,172 @@
+// Headless previews: points land where the chosen view projects them, the automatic view fits the
+// content, and `nerfslam render-preview` draws clouds, trajectories and keyframes from files.
+#include <gtest/gtest.h>
+
+#include <fstream>
+
+#include <pcl/io/ply_io.h>
+#include <pcl/point_types.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/io/trajectory.h"
+#include "nerfslam/render/preview.h"
+#include "nerfslam/render/synth.h"
+#include "nerfslam/render/trajectory.h"
+#include "test_support.h"
+
+namespace nerfslam::render {
+namespace {
+namespace fs = std::filesystem;
+
+TEST(Preview, PointsLandWhereTheViewProjectsThem) {
+  PreviewScene s;
+  PreviewCloud c;
+  c.points = {{1.0f, 0.0f, 0.5f}, {-0.8f, 0.3f, -0.4f}, {0.0f, 0.0f, 0.0f}};
+  c.colors.resize(3);
+  c.colors[0] = cv::Vec3b(0, 0, 255);
+  c.colors[1] = cv::Vec3b(0, 255, 0);
+  c.colors[2] = cv::Vec3b(255, 0, 0);
+  s.clouds.push_back(c);
+  PreviewOptions o;
+  o.width = 200;
+  o.height = 150;
+  o.point_size = 5;
+  o.legend = false;
+  o.eye = Eigen::Vector3d(0, -5, 0);
+  o.target = Eigen::Vector3d(0, 0, 0);
+  const cv::Mat img = renderPreview(s, o);
+  ASSERT_EQ(img.size(), cv::Size(200, 150));
+  const double f = 75.0 / std::tan(30.0 * M_PI / 180.0);
+  const Camera cam = Camera::pinhole(200, 150, f, f, 99.5, 74.5);
+  const SE3 T_world_cam = lookAt(*o.eye, *o.target);
+  for (size_t i = 0; i < c.points.size(); ++i) {
+    const Eigen::Vector2d uv = cam.project(T_world_cam.inverse() * c.points[i].cast<double>());
+    const cv::Vec3b px =
+        img.at<cv::Vec3b>(static_cast<int>(std::lround(uv.y())), static_cast<int>(std::lround(uv.x())));
+    EXPECT_EQ(px, c.colors[i]) << "point " << i << " at " << uv.transpose();
+  }
+  // Only the three 5x5 dots differ from the background.
+  cv::Mat diff;
+  cv::absdiff(img, cv::Scalar(o.background[0], o.background[1], o.background[2]), diff);
+  cv::Mat gray;
+  cv::cvtColor(diff, gray, cv::COLOR_BGR2GRAY);
+  EXPECT_NEAR(cv::countNonZero(gray), 75, 10);
+}
+
+TEST(Preview, AutomaticViewFitsEverything) {
+  PreviewScene s;
+  PreviewCloud c;
+  cv::RNG rng(4);
+  for (int i = 0; i < 2000; ++i)
+    c.points.emplace_back(rng.uniform(-3.f, 5.f), rng.uniform(10.f, 12.f), rng.uniform(0.f, 2.f));
+  s.clouds.push_back(c);
+  PreviewTrajectory t;
+  for (int i = 0; i < 50; ++i) t.poses.push_back(SE3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(i * 0.1, 11, 1)));
+  s.trajectories.push_back(t);
+  PreviewOptions o;
+  o.width = 320;
+  o.height = 240;
+  Eigen::Vector3d eye, target;
+  autoView(s, o, &eye, &target);
+  const double f = 120.0 / std::tan(30.0 * M_PI / 180.0);
+  const Camera cam = Camera::pinhole(320, 240, f, f, 159.5, 119.5);
+  const SE3 T_cam_world = lookAt(eye, target).inverse();
+  for (const auto& p : c.points) {
+    Eigen::Vector2d uv;
+    EXPECT_TRUE(cam.projectInImage(T_cam_world * p.cast<double>(), &uv)) << p.transpose();
+  }
+  EXPECT_GT(eye.z(), target.z());  // from above
+  EXPECT_THROW(renderPreview(PreviewScene{}, o), Error);
+  o.width = 0;
+  EXPECT_THROW(renderPreview(s, o), Error);
+}
+
+TEST(Preview, ParsesViewsAndColours) {
+  Eigen::Vector3d e, t;
+  parseView("eye=1,2,3,target=0,0.5,-1", &e, &t);
+  EXPECT_EQ(e, Eigen::Vector3d(1, 2, 3));
+  EXPECT_EQ(t, Eigen::Vector3d(0, 0.5, -1));
+  parseView("target=0,0,0, eye=4,5,6", &e, &t);
+  EXPECT_EQ(e, Eigen::Vector3d(4, 5, 6));
+  EXPECT_THROW(parseView("eye=1,2,target=0,0,0", &e, &t), Error);
+  EXPECT_THROW(parseView("1,2,3", &e, &t), Error);
+  EXPECT_THROW(parseView("eye=1,2,3,target=1,2,3", &e, &t), Error);
+  EXPECT_EQ(parseColor("#ff8000"), cv::Vec3b(0, 128, 255));
+  EXPECT_THROW(parseColor("chartreuse"), Error);
+}
+
+// A synthetic room without its ceiling: back-projected depth as a coloured dense cloud, GT and a drifting estimate as
+// trajectories, every 50th GT pose as keyframes; drawn through the CLI.
+TEST(PreviewCli, DrawsCloudTrajectoriesAndKeyframes) {
+  if (!fs::exists(test::cliPath())) GTEST_SKIP() << "nerfslam binary not built";
+  test::TempDir tmp;
+  SynthOptions so;
+  so.frames = 300;
+  so.width = 160;
+  so.height = 120;
+  so.textures = "procedural";
+  SequenceRenderer seq(so);
+  pcl::PointCloud<pcl::PointXYZRGB> cloud;
+  for (int i : {0, 100, 200, 299}) {
+    const SynthFrame f = seq.render(i);
+    for (int v = 0; v < f.depth.rows; v += 2)
+      for (int u = 0; u < f.depth.cols; u += 2) {
+        const float z = f.depth.at<float>(v, u);
+        const Eigen::Vector3d X = f.T_world_cam * (seq.camera().unproject({u, v}) * z);
+        if (X.z() > 2.5) continue;  // no ceiling: a "dollhouse" view into the room
+        pcl::PointXYZRGB p;
+        p.x = static_cast<float>(X.x()), p.y = static_cast<float>(X.y()), p.z = static_cast<float>(X.z());
+        const cv::Vec3b c = f.bgr.at<cv::Vec3b>(v, u);
+        p.b = c[0], p.g = c[1], p.r = c[2];
+        cloud.push_back(p);
+      }
+  }
+  ASSERT_EQ(pcl::io::savePLYFileBinary((tmp / "cloud.ply").string(), cloud), 0);
+  Trajectory gt, est, kf;
+  for (int i = 0; i < 300; ++i) {
+    gt.push_back({seq.timestamp(i), seq.pose(i)});
+    est.push_back({seq.timestamp(i),
+                   SE3(seq.pose(i).rotation(), seq.pose(i).translation() + Eigen::Vector3d(0.002 * i, 0, 0.3))});
+    if (i % 50 == 0) kf.push_back(gt.back());
+  }
+  writeTumTrajectory(tmp / "gt.txt", gt);
+  writeTumTrajectory(tmp / "est.txt", est);
+  writeTumTrajectory(tmp / "kf.txt", kf);
+  const fs::path out = tmp / "preview.png";
+  auto r = test::runCli("render-preview --points '" + (tmp / "cloud.ply").string() + "' --trajectory '" +
+                        (tmp / "gt.txt").string() + ":green' --trajectory '" + (tmp / "est.txt").string() +
+                        ":#ff00ff' --keyframes '" + (tmp / "kf.txt").string() +
+                        "' --frustum-size 0.02 --size 400x300 --out '" + out.string() + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const cv::Mat img = cv::imread(out.string());
+  ASSERT_EQ(img.size(), cv::Size(400, 300));
+  int magenta = 0, green = 0;
+  for (int v = 0; v < img.rows; ++v)
+    for (int u = 40; u < img.cols; ++u) {  // skip the legend
+      const cv::Vec3b c = img.at<cv::Vec3b>(v, u);
+      magenta += c == cv::Vec3b(255, 0, 255);
+      green += c == parseColor("green");
+    }
+  EXPECT_GT(magenta, 20) << "estimated trajectory not drawn";
+  EXPECT_GT(green, 20) << "ground-truth trajectory not drawn";
+  if (const char* keep = std::getenv("NERFSLAM_KEEP_PREVIEW"))
+    fs::copy_file(out, keep, fs::copy_options::overwrite_existing);
+
+  r = test::runCli("render-preview --points '" + (tmp / "missing.ply").string() + "' --out '" + out.string() + "'");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("missing.ply"), std::string::npos) << r.output;
+  r = test::runCli("render-preview --trajectory '" + (tmp / "gt.txt").string() + "' --view 'eye=1,2' --out '" +
+                   out.string() + "'");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("--view"), std::string::npos) << r.output;
+  r = test::runCli("render-preview --trajectory '" + (tmp / "gt.txt").string() + "' --size 0x0 --out '" + out.string() +
+                   "'");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("--size"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace nerfslam::render
