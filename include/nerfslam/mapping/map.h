@@ -1,0 +1,142 @@
+#pragma once
+// The sparse SLAM map: keyframes (pose, the tracked Frame with its features and image pyramid, and
+// the map point seen by each keypoint), map points (position, observations, representative
+// descriptor, mean viewing direction) and the covisibility between keyframes (number of shared
+// points, derived from the observations).
+//
+// Ownership and locking: the Map owns everything behind one std::shared_mutex. Every read returns a
+// copy (a Keyframe copy shares its immutable Frame through a shared_ptr), every write is one short
+// exclusive section, so a reader never sees a half-updated pose. The mapping thread optimises copies
+// and publishes the result in one call (applyUpdate), which bumps version(). Features of a keyframe
+// are immutable once inserted; only its pose and keypoint->point associations change.
+#include <atomic>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <shared_mutex>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/pose.h"
+#include "nerfslam/tracking/frame.h"
+
+namespace nerfslam {
+
+using KeyframeId = int64_t;
+using PointId = int64_t;
+constexpr PointId kNoPoint = -1;
+
+struct Keyframe {
+  KeyframeId id = -1;
+  SE3 T_world_cam;
+  std::shared_ptr<const Frame> frame;  // features, descriptors, pyramid; never modified
+  std::vector<PointId> points;         // per keypoint: the map point it observes, or kNoPoint
+  bool fixed = false;                  // gauge keyframe (the first), never moved by BA
+
+  double timestamp() const { return frame ? frame->timestamp : 0.0; }
+  uint64_t frameId() const { return frame ? frame->id : 0; }
+  Eigen::Vector3d centre() const { return T_world_cam.translation(); }
+  int numTrackedPoints() const;
+};
+
+struct MapPoint {
+  PointId id = -1;
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  // mean unit viewing direction (point - centre)
+  cv::Mat descriptor;                                 // 1 x 32 CV_8U, the medoid of the observations
+  std::map<KeyframeId, int> observations;             // keyframe -> keypoint index
+  KeyframeId first_keyframe = -1;
+  int visible = 1;  // frames that should have seen it (tracking statistics)
+  int found = 1;    // frames that matched it
+  double foundRatio() const { return visible > 0 ? double(found) / visible : 0.0; }
+};
+
+// A batch of results published atomically by the mapping thread.
+struct MapUpdate {
+  std::vector<std::pair<KeyframeId, SE3>> keyframe_poses;
+  std::vector<std::pair<PointId, Eigen::Vector3d>> point_positions;
+  std::vector<std::pair<PointId, KeyframeId>> erase_observations;
+  std::vector<PointId> erase_points;
+};
+
+class Map {
+ public:
+  explicit Map(Camera camera = {});
+  Map(const Map&) = delete;
+  Map& operator=(const Map&) = delete;
+
+  // The undistorted (ideal pinhole) camera keypoints' `undistorted` positions refer to.
+  const Camera& camera() const { return camera_; }
+
+  // Inserts a keyframe (id assigned and returned). `kf.points` must have one entry per keypoint (or
+  // be empty: all kNoPoint); existing points listed there get the observation. The first keyframe
+  // is fixed.
+  KeyframeId addKeyframe(Keyframe kf);
+  // Creates a point with the given observations (keyframe -> keypoint) and computes its descriptor
+  // and normal. Observations of unknown keyframes or already-associated keypoints are skipped;
+  // returns kNoPoint (nothing created) when fewer than two are left.
+  PointId addPoint(const Eigen::Vector3d& position, const std::map<KeyframeId, int>& observations);
+  // Associates keypoint `idx` of keyframe `kf` with point `pid` (replacing nothing: false when the
+  // keypoint is taken, the point already has an observation in kf, or either is unknown).
+  bool addObservation(PointId pid, KeyframeId kf, int idx);
+  void eraseObservation(PointId pid, KeyframeId kf);
+  void erasePoint(PointId pid);
+  // Removes a keyframe and its observations; points left with < 2 observations are removed.
+  // With a `parent` (a keyframe that stays), the removed keyframe's pose is remembered relative to
+  // it so poses of frames referenced to the removed keyframe can still be resolved (resolvePose).
+  void eraseKeyframe(KeyframeId kf, KeyframeId parent = -1);
+  // Current pose of keyframe `id`, following the parent chain of removed keyframes.
+  std::optional<SE3> resolvePose(KeyframeId id) const;
+  // Replaces `from` by `to` (observations merged, descriptors recomputed).
+  void fusePoints(PointId from, PointId to);
+  // Recomputes descriptor and normal of a point from its observations.
+  void updatePointAppearance(PointId pid);
+  void setKeyframePose(KeyframeId id, const SE3& T_world_cam);
+  void applyUpdate(const MapUpdate& update);
+  // Tracking statistics.
+  void increaseVisible(const std::vector<PointId>& pids);
+  void increaseFound(const std::vector<PointId>& pids);
+  // Applies `T` (a similarity) to every pose and point, e.g. to rescale the map.
+  void transform(const Sim3& T);
+  void clear();
+
+  std::optional<Keyframe> keyframe(KeyframeId id) const;
+  std::optional<MapPoint> point(PointId id) const;
+  std::vector<Keyframe> keyframes() const;      // ordered by id
+  std::vector<KeyframeId> keyframeIds() const;  // ordered by id
+  std::vector<MapPoint> points() const;
+  std::vector<MapPoint> points(const std::vector<PointId>& ids) const;  // unknown ids skipped
+  std::optional<KeyframeId> lastKeyframeId() const;
+  size_t numKeyframes() const;
+  size_t numPoints() const;
+  // Keyframes sharing >= min_shared points with `id`, sorted by decreasing count.
+  std::vector<std::pair<KeyframeId, int>> covisibleKeyframes(KeyframeId id, int min_shared = 1) const;
+  // Points observed by the given keyframes (each once).
+  std::vector<PointId> pointsSeenBy(const std::vector<KeyframeId>& kfs) const;
+
+  // Incremented on every write.
+  uint64_t version() const { return version_.load(std::memory_order_acquire); }
+
+ private:
+  void eraseObservationLocked(PointId pid, KeyframeId kf);
+  void erasePointLocked(PointId pid);
+  void updateAppearanceLocked(MapPoint& p);
+  void bump() { version_.fetch_add(1, std::memory_order_acq_rel); }
+
+  Camera camera_;
+  mutable std::shared_mutex mutex_;
+  std::map<KeyframeId, Keyframe> keyframes_;
+  std::unordered_map<PointId, MapPoint> points_;
+  std::map<KeyframeId, std::pair<KeyframeId, SE3>> retired_;  // removed kf -> (parent, T_parent_kf)
+  KeyframeId next_kf_ = 0;
+  PointId next_point_ = 0;
+  std::atomic<uint64_t> version_{0};
+};
+
+}  // namespace nerfslam

@@ -1,0 +1,99 @@
+#pragma once
+// The mapping thread and the keyframe bus.
+//
+// Tracking hands keyframes over with submit(), which never blocks: the input queue is bounded and a
+// keyframe that does not fit is dropped and counted (tracking then simply keeps tracking against the
+// existing map and asks again later). The thread inserts each keyframe into the Map, publishes it on
+// the KeyframeBus, then runs the LocalMapper on it.
+//
+// KeyframeBus: any number of consumers (e.g. the NeRF mapping thread) subscribe with their own
+// bounded queue and overflow policy; publishing never blocks the mapping thread. A consumer reads
+// geometry that BA refines later from the Map (Map::keyframe(id)) when it needs the latest pose.
+#include <atomic>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <utility>
+#include <vector>
+
+#include "nerfslam/mapping/bounded_queue.h"
+#include "nerfslam/mapping/local_mapper.h"
+#include "nerfslam/mapping/map.h"
+
+namespace nerfslam {
+
+struct KeyframeInsertion {
+  std::shared_ptr<const Frame> frame;
+  SE3 T_world_cam;
+  std::vector<std::pair<int, PointId>> matches;  // keypoint index -> map point tracked in this frame
+};
+
+struct KeyframeEvent {
+  KeyframeId id = -1;
+  SE3 T_world_cam;  // at insertion (before local BA)
+  std::shared_ptr<const Frame> frame;
+};
+
+class KeyframeBus {
+ public:
+  using Queue = BoundedQueue<KeyframeEvent>;
+  // A new consumer queue; it receives every keyframe published from now on.
+  std::shared_ptr<Queue> subscribe(std::size_t capacity, OverflowPolicy policy = OverflowPolicy::kDropOldest);
+  void unsubscribe(const std::shared_ptr<Queue>& queue);
+  // Never blocks; returns the number of subscribers that accepted the event.
+  int publish(const KeyframeEvent& event);
+  // Closes every subscriber queue (consumers drain and finish).
+  void close();
+  std::size_t numSubscribers() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<std::shared_ptr<Queue>> queues_;
+};
+
+class MappingThread {
+ public:
+  MappingThread(Map& map, MappingOptions options, std::size_t queue_capacity = 3);
+  ~MappingThread();
+  MappingThread(const MappingThread&) = delete;
+  MappingThread& operator=(const MappingThread&) = delete;
+
+  void start();
+  // Finishes the queued keyframes, then joins. Idempotent.
+  void stop();
+
+  // Non-blocking; false when the queue is full (counted in droppedKeyframes()) or stopped.
+  bool submit(KeyframeInsertion kf);
+  // Inserts and processes a keyframe in the calling thread (initialisation, tests). Must not be
+  // called while the thread runs.
+  KeyframeId insertNow(KeyframeInsertion kf, bool process = true);
+  // No submitted keyframe waiting or being processed.
+  bool idle() const;
+  // Blocks until idle() (used by lock-step offline runs, never by tracking).
+  void waitIdle() const;
+
+  KeyframeBus& bus() { return bus_; }
+  LocalMapper& mapper() { return mapper_; }
+  uint64_t droppedKeyframes() const { return queue_.dropped(); }
+  std::vector<MappingStats> stats() const;
+
+ private:
+  void run();
+  KeyframeId insert(KeyframeInsertion kf);
+
+  Map& map_;
+  LocalMapper mapper_;
+  BoundedQueue<KeyframeInsertion> queue_;
+  KeyframeBus bus_;
+  std::thread thread_;
+  std::atomic<int> pending_{0};  // submitted, not yet processed
+  std::atomic<bool> thread_running_{false};
+  mutable std::mutex stats_mutex_;
+  mutable std::condition_variable idle_cv_;
+  std::vector<MappingStats> stats_;
+  bool started_ = false;
+};
+
+}  // namespace nerfslam

@@ -1,0 +1,42 @@
+#pragma once
+// `nerfslam run`: plays a dataset through SlamSystem with three threads — a reader (decodes images,
+// paces them at their timestamps with --realtime), the tracking thread, and the mapping thread — and
+// writes trajectory.txt (TUM, every tracked frame), keyframes.txt (TUM), map_points.ply and
+// report.json into the output directory, all atomically.
+#include <cstddef>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "nerfslam/system/slam_system.h"
+
+namespace nerfslam {
+
+struct RunOptions {
+  std::string dataset;  // [kind:]PATH
+  std::optional<std::filesystem::path> camera;
+  std::optional<std::filesystem::path> config;
+  std::filesystem::path out;
+  std::size_t max_frames = 0;  // 0: all
+  bool realtime = false;
+  bool progress = true;                 // progress line on stderr
+  std::optional<SystemOptions> system;  // used instead of defaults + config when set (tests)
+};
+
+struct RunResult {
+  nlohmann::json report;  // also written to out/report.json
+  bool initialized = false;
+  int exit_code = 0;  // 0 also when the run ends uninitialised (the report says why)
+};
+
+// Throws nerfslam::Error for bad arguments (unknown dataset kind, unreadable config, calibration
+// that does not match the images, unwritable output directory).
+RunResult runSlam(const RunOptions& options);
+
+// Binary-little-endian-free ASCII PLY of the map points (x y z, number of observations), atomic.
+void writeMapPly(const std::filesystem::path& path, const Map& map);
+
+}  // namespace nerfslam

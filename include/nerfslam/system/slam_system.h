@@ -1,0 +1,145 @@
+#pragma once
+// Monocular SLAM: the tracking front end (tracking module) on the caller's thread and the mapping
+// back end (MappingThread) on its own thread. trackFrame() never waits for mapping: keyframes are
+// handed over through a bounded queue (dropped and counted when mapping is busy) and tracking reads
+// the map through copies taken under the map's lock.
+//
+// Every tracked frame is stored relative to its reference keyframe, so the final trajectory follows
+// the keyframes' bundle-adjusted poses (trajectory()).
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/options.h"
+#include "nerfslam/core/pose.h"
+#include "nerfslam/io/trajectory.h"
+#include "nerfslam/mapping/map.h"
+#include "nerfslam/mapping/mapping_thread.h"
+#include "nerfslam/tracking/options.h"
+
+namespace nerfslam {
+
+// System-level tuning of the tracking defaults: a keyframe may follow the previous one immediately
+// (forward motion, e.g. KITTI at 10 Hz, needs one nearly every frame) and frames get 2000 features.
+inline TrackingOptions systemTrackingDefaults() {
+  TrackingOptions t;
+  t.keyframes.min_frames_between = 1;
+  t.features.max_features = 2000;
+  return t;
+}
+
+struct SystemOptions {
+  TrackingOptions tracking = systemTrackingDefaults();
+  MappingOptions mapping;
+  int local_map_keyframes = 10;          // covisible keyframes whose points tracking matches against
+  int keyframe_queue = 3;                // mapping input queue (keyframes beyond it are dropped)
+  int relocalization_candidates = 5;     // most recent keyframes tried when lost
+  int min_initial_points = 50;           // map points required after initialisation + BA
+  int reset_if_lost_with_keyframes = 3;  // lost with at most this many keyframes: reinitialise
+  int frame_queue = 2;                   // frames between the reader and the tracking thread
+  bool lockstep = true;                  // offline runs: the reader waits for tracking and mapping per frame
+
+  template <class V>
+  void visit(V& v) {
+    v("tracking", tracking, "Tracking front end");
+    v("mapping", mapping, "Mapping back end");
+    v("local_map_keyframes", local_map_keyframes, "Covisible keyframes forming the local map tracked against",
+      check::range(1, 1000));
+    v("keyframe_queue", keyframe_queue, "Keyframes queued for mapping before new ones are dropped",
+      check::range(1, 1000));
+    v("relocalization_candidates", relocalization_candidates, "Recent keyframes tried by relocalisation",
+      check::range(1, 1000));
+    v("min_initial_points", min_initial_points, "Map points required to accept an initialisation",
+      check::range(8, 100000));
+    v("reset_if_lost_with_keyframes", reset_if_lost_with_keyframes,
+      "Reinitialise when tracking is lost and the map has at most this many keyframes", check::range(0, 1000));
+    v("frame_queue", frame_queue, "Frames buffered between the reader and the tracking thread", check::range(1, 1000));
+    v("lockstep", lockstep,
+      "Offline runs (not --realtime): the reader waits until each frame is tracked and mapping is idle "
+      "(reproducible results; tracking itself never waits)");
+  }
+};
+
+enum class TrackingState { kNotInitialized, kTracking, kLost };
+const char* toString(TrackingState s);  // "not_initialized", "tracking", "lost"
+
+struct FrameRecord {
+  uint64_t index = 0;
+  double timestamp = 0;
+  TrackingState state = TrackingState::kNotInitialized;
+  bool tracked = false;
+  bool keyframe = false;  // submitted as a keyframe (and accepted by the mapping queue)
+  int num_features = 0;
+  int num_inliers = 0;
+  SE3 T_world_cam;  // at tracking time
+  KeyframeId reference = -1;
+  SE3 T_ref_cam;
+  double tracking_ms = 0;
+  std::string message;
+};
+
+class SlamSystem {
+ public:
+  SlamSystem(const Camera& camera, SystemOptions options);
+  ~SlamSystem();
+  SlamSystem(const SlamSystem&) = delete;
+  SlamSystem& operator=(const SlamSystem&) = delete;
+
+  // Tracks one frame (8-bit grey or BGR, the camera's size) in the calling thread. Throws
+  // nerfslam::Error for an image of the wrong size or type.
+  FrameRecord trackFrame(const cv::Mat& image, double timestamp, uint64_t index);
+  // Stops mapping (after the queued keyframes) and runs the global bundle adjustment.
+  void finish(bool global_ba = true);
+
+  TrackingState state() const { return state_; }
+  bool initialized() const { return initialized_once_; }
+  bool mappingIdle() const { return mapping_->idle(); }
+  void waitMappingIdle() const { mapping_->waitIdle(); }
+  const Map& map() const { return *map_; }
+  Map& map() { return *map_; }
+  KeyframeBus& keyframeBus() { return mapping_->bus(); }
+  MappingThread& mapping() { return *mapping_; }
+  const std::vector<FrameRecord>& records() const { return records_; }
+  // Tracked frames with poses resolved through their reference keyframes (current map).
+  Trajectory trajectory() const;
+  Trajectory keyframeTrajectory() const;
+  uint64_t droppedKeyframes() const { return mapping_->droppedKeyframes(); }
+  const std::string& lastInitMessage() const { return last_init_message_; }
+  int initializationCount() const { return initializations_; }
+  int relocalizations() const { return relocalizations_; }
+
+ private:
+  bool initialize(const InitializationResult& r, const std::shared_ptr<const Frame>& frame, FrameRecord& rec);
+  void reset();
+  void buildLocalMap(KeyframeId ref);
+  KeyframeId chooseReference(const std::vector<MapMatch>& matches) const;
+
+  Camera camera_;
+  SystemOptions opt_;
+  std::unique_ptr<Map> map_;
+  std::unique_ptr<MappingThread> mapping_;
+  std::unique_ptr<Initializer> initializer_;
+  std::unique_ptr<Tracker> tracker_;
+  TrackingState state_ = TrackingState::kNotInitialized;
+  bool initialized_once_ = false;
+  int initializations_ = 0, relocalizations_ = 0;
+  std::string last_init_message_;
+  std::vector<FrameRecord> records_;
+  // Local map cache.
+  std::vector<TrackingMapPoint> local_points_;
+  std::vector<KeyframeId> local_keyframes_;
+  uint64_t local_version_ = ~0ull;
+  KeyframeId local_ref_ = -1;
+  KeyframeId reference_ = -1;
+  std::vector<MapMatch> last_matches_;
+  std::vector<std::shared_ptr<const Frame>> pre_init_frames_;  // tracked retroactively after initialisation
+  int frames_since_keyframe_ = 0;
+  bool finished_ = false;
+};
+
+}  // namespace nerfslam

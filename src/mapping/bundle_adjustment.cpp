@@ -1,0 +1,204 @@
+#include "nerfslam/mapping/bundle_adjustment.h"
+
+#include <ceres/ceres.h>
+#include <ceres/product_manifold.h>
+#include <ceres/rotation.h>
+
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include "nerfslam/core/error.h"
+
+namespace nerfslam {
+namespace {
+
+struct ReprojectionResidual {
+  ReprojectionResidual(const Eigen::Vector2d& uv, double sigma, double fx, double fy, double cx, double cy)
+      : u(uv.x()), v(uv.y()), inv_sigma(1.0 / sigma), fx(fx), fy(fy), cx(cx), cy(cy) {}
+
+  // pose = (qw qx qy qz tx ty tz) of T_cam_world.
+  template <typename T>
+  bool operator()(const T* pose, const T* point, T* residual) const {
+    T p[3];
+    ceres::QuaternionRotatePoint(pose, point, p);
+    p[0] += pose[4];
+    p[1] += pose[5];
+    p[2] += pose[6];
+    const T z = p[2] < T(1e-9) ? T(1e-9) : p[2];
+    residual[0] = (T(fx) * p[0] / z + T(cx) - T(u)) * T(inv_sigma);
+    residual[1] = (T(fy) * p[1] / z + T(cy) - T(v)) * T(inv_sigma);
+    return true;
+  }
+
+  double u, v, inv_sigma, fx, fy, cx, cy;
+};
+
+using PoseManifold = ceres::ProductManifold<ceres::QuaternionManifold, ceres::EuclideanManifold<3>>;
+
+void toParamsImpl(const SE3& T_world_cam, double* x) {
+  const SE3 T_cam_world = T_world_cam.inverse();
+  const Eigen::Quaterniond& q = T_cam_world.rotation();
+  x[0] = q.w();
+  x[1] = q.x();
+  x[2] = q.y();
+  x[3] = q.z();
+  x[4] = T_cam_world.translation().x();
+  x[5] = T_cam_world.translation().y();
+  x[6] = T_cam_world.translation().z();
+}
+
+SE3 fromParamsImpl(const double* x) {
+  const Eigen::Quaterniond q(x[0], x[1], x[2], x[3]);
+  return SE3(q.normalized(), Eigen::Vector3d(x[4], x[5], x[6])).inverse();
+}
+
+double obsError(const double* pose, const double* point, const BaProblem& pb, const BaProblem::Observation& o) {
+  double p[3];
+  ceres::QuaternionRotatePoint(pose, point, p);
+  p[0] += pose[4];
+  p[1] += pose[5];
+  p[2] += pose[6];
+  if (!(p[2] > 1e-9)) return std::numeric_limits<double>::infinity();
+  const double du = pb.fx * p[0] / p[2] + pb.cx - o.uv.x();
+  const double dv = pb.fy * p[1] / p[2] + pb.cy - o.uv.y();
+  return std::sqrt(du * du + dv * dv);
+}
+
+}  // namespace
+
+void poseToParams(const SE3& T_world_cam, double* x) { toParamsImpl(T_world_cam, x); }
+SE3 poseFromParams(const double* x) { return fromParamsImpl(x); }
+std::unique_ptr<ceres::Manifold> makePoseManifold() { return std::make_unique<PoseManifold>(); }
+
+double reprojectionError(const BaProblem& problem, const BaProblem::Observation& obs) {
+  double x[7];
+  poseToParams(problem.cameras.at(obs.camera).T_world_cam, x);
+  return obsError(x, problem.points.at(obs.point).position.data(), problem, obs);
+}
+
+BaResult bundleAdjust(BaProblem& pb, const BundleAdjustmentOptions& opt) {
+  const auto t0 = std::chrono::steady_clock::now();
+  BaResult res;
+  const int nc = static_cast<int>(pb.cameras.size());
+  const int np = static_cast<int>(pb.points.size());
+  for (const auto& o : pb.observations) {
+    if (o.camera < 0 || o.camera >= nc || o.point < 0 || o.point >= np)
+      fail("bundle adjustment: observation refers to camera {} / point {} of {} / {}", o.camera, o.point, nc, np);
+    if (!(o.sigma > 0) || !o.uv.allFinite()) fail("bundle adjustment: invalid observation (sigma {})", o.sigma);
+  }
+  res.inlier.assign(pb.observations.size(), true);
+
+  std::vector<std::array<double, 7>> poses(nc);
+  for (int i = 0; i < nc; ++i) poseToParams(pb.cameras[i].T_world_cam, poses[i].data());
+  std::vector<Eigen::Vector3d> pts(np);
+  for (int i = 0; i < np; ++i) pts[i] = pb.points[i].position;
+
+  auto rmse = [&](bool inliers_only) {
+    double s = 0;
+    int n = 0;
+    for (std::size_t k = 0; k < pb.observations.size(); ++k) {
+      if (inliers_only && !res.inlier[k]) continue;
+      const auto& o = pb.observations[k];
+      const double e = obsError(poses[o.camera].data(), pts[o.point].data(), pb, o);
+      if (!std::isfinite(e)) continue;
+      s += e * e;
+      ++n;
+    }
+    return n ? std::sqrt(s / n) : 0.0;
+  };
+  res.initial_rmse_px = rmse(false);
+
+  auto solve = [&](int iterations) {
+    ceres::Problem::Options popt;
+    popt.manifold_ownership = ceres::TAKE_OWNERSHIP;
+    popt.loss_function_ownership = ceres::TAKE_OWNERSHIP;
+    ceres::Problem problem(popt);
+    std::vector<bool> cam_used(nc, false), pt_used(np, false);
+    for (std::size_t k = 0; k < pb.observations.size(); ++k) {
+      if (!res.inlier[k]) continue;
+      const auto& o = pb.observations[k];
+      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionResidual, 2, 7, 3>(
+          new ReprojectionResidual(o.uv, o.sigma, pb.fx, pb.fy, pb.cx, pb.cy));
+      problem.AddResidualBlock(cost, new ceres::HuberLoss(opt.huber_px), poses[o.camera].data(), pts[o.point].data());
+      cam_used[o.camera] = true;
+      pt_used[o.point] = true;
+    }
+    bool any_free = false;
+    for (int i = 0; i < nc; ++i) {
+      if (!cam_used[i]) continue;
+      problem.SetManifold(poses[i].data(), new PoseManifold());
+      if (pb.cameras[i].fixed)
+        problem.SetParameterBlockConstant(poses[i].data());
+      else
+        any_free = true;
+    }
+    for (int i = 0; i < np; ++i) {
+      if (!pt_used[i]) continue;
+      if (pb.points[i].fixed)
+        problem.SetParameterBlockConstant(pts[i].data());
+      else
+        any_free = true;
+    }
+    if (!any_free || problem.NumResidualBlocks() == 0) return true;
+    ceres::Solver::Options so;
+    so.linear_solver_type = ceres::SPARSE_SCHUR;
+    so.max_num_iterations = iterations;
+    so.num_threads = opt.num_threads;
+    so.max_solver_time_in_seconds = opt.max_solver_time_s;
+    so.minimizer_progress_to_stdout = false;
+    so.logging_type = ceres::SILENT;
+    // Schur ordering: points first.
+    auto* ordering = new ceres::ParameterBlockOrdering;
+    for (int i = 0; i < np; ++i)
+      if (pt_used[i]) ordering->AddElementToGroup(pts[i].data(), 0);
+    for (int i = 0; i < nc; ++i)
+      if (cam_used[i]) ordering->AddElementToGroup(poses[i].data(), 1);
+    so.linear_solver_ordering.reset(ordering);
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    res.iterations += static_cast<int>(summary.iterations.size());
+    return summary.termination_type == ceres::CONVERGENCE || summary.termination_type == ceres::NO_CONVERGENCE ||
+           summary.termination_type == ceres::USER_SUCCESS;
+  };
+
+  // Observations already behind the camera cannot be optimised meaningfully.
+  for (std::size_t k = 0; k < pb.observations.size(); ++k) {
+    const auto& o = pb.observations[k];
+    if (!std::isfinite(obsError(poses[o.camera].data(), pts[o.point].data(), pb, o))) res.inlier[k] = false;
+  }
+  bool ok = solve(opt.max_iterations);
+  if (opt.refine_iterations > 0) {
+    int removed = 0;
+    for (std::size_t k = 0; k < pb.observations.size(); ++k) {
+      if (!res.inlier[k]) continue;
+      const auto& o = pb.observations[k];
+      const double e = obsError(poses[o.camera].data(), pts[o.point].data(), pb, o);
+      if (!(e <= opt.outlier_px * o.sigma)) {
+        res.inlier[k] = false;
+        ++removed;
+      }
+    }
+    if (removed > 0) ok = solve(opt.refine_iterations) && ok;
+  }
+  // Final classification.
+  res.outliers = 0;
+  for (std::size_t k = 0; k < pb.observations.size(); ++k) {
+    const auto& o = pb.observations[k];
+    const double e = obsError(poses[o.camera].data(), pts[o.point].data(), pb, o);
+    res.inlier[k] = e <= opt.outlier_px * o.sigma;
+    if (!res.inlier[k]) ++res.outliers;
+  }
+  res.final_rmse_px = rmse(true);
+  res.converged = ok;
+
+  for (int i = 0; i < nc; ++i)
+    if (!pb.cameras[i].fixed) pb.cameras[i].T_world_cam = poseFromParams(poses[i].data());
+  for (int i = 0; i < np; ++i)
+    if (!pb.points[i].fixed) pb.points[i].position = pts[i];
+  res.time_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+}  // namespace nerfslam

@@ -1,0 +1,371 @@
+#include "nerfslam/mapping/map.h"
+
+#include <algorithm>
+#include <mutex>
+#include <set>
+
+#include "nerfslam/core/error.h"
+
+namespace nerfslam {
+
+int Keyframe::numTrackedPoints() const {
+  int n = 0;
+  for (PointId p : points) n += p != kNoPoint;
+  return n;
+}
+
+Map::Map(Camera camera) : camera_(std::move(camera)) {}
+
+KeyframeId Map::addKeyframe(Keyframe kf) {
+  if (!kf.frame) fail("Map::addKeyframe: keyframe without a frame");
+  const size_t n = kf.frame->keypoints.size();
+  if (kf.points.empty()) kf.points.assign(n, kNoPoint);
+  if (kf.points.size() != n) fail("Map::addKeyframe: {} point slots for {} keypoints", kf.points.size(), n);
+  std::unique_lock lock(mutex_);
+  kf.id = next_kf_++;
+  if (keyframes_.empty()) kf.fixed = true;
+  for (size_t i = 0; i < n; ++i) {
+    const PointId pid = kf.points[i];
+    if (pid == kNoPoint) continue;
+    auto it = points_.find(pid);
+    if (it == points_.end() || it->second.observations.count(kf.id)) {
+      kf.points[i] = kNoPoint;
+      continue;
+    }
+    it->second.observations[kf.id] = static_cast<int>(i);
+  }
+  const KeyframeId id = kf.id;
+  auto& stored = keyframes_.emplace(id, std::move(kf)).first->second;
+  for (PointId pid : stored.points)
+    if (pid != kNoPoint) updateAppearanceLocked(points_.at(pid));
+  bump();
+  return id;
+}
+
+PointId Map::addPoint(const Eigen::Vector3d& position, const std::map<KeyframeId, int>& observations) {
+  if (!position.allFinite()) return kNoPoint;
+  std::unique_lock lock(mutex_);
+  MapPoint p;
+  p.position = position;
+  for (const auto& [kid, idx] : observations) {
+    auto it = keyframes_.find(kid);
+    if (it == keyframes_.end()) continue;
+    if (idx < 0 || idx >= static_cast<int>(it->second.points.size())) continue;
+    if (it->second.points[idx] != kNoPoint) continue;
+    p.observations[kid] = idx;
+  }
+  if (p.observations.size() < 2) return kNoPoint;
+  p.id = next_point_++;
+  p.first_keyframe = p.observations.begin()->first;
+  for (const auto& [kid, idx] : p.observations) keyframes_.at(kid).points[idx] = p.id;
+  auto& stored = points_.emplace(p.id, std::move(p)).first->second;
+  updateAppearanceLocked(stored);
+  bump();
+  return stored.id;
+}
+
+bool Map::addObservation(PointId pid, KeyframeId kid, int idx) {
+  std::unique_lock lock(mutex_);
+  auto pit = points_.find(pid);
+  auto kit = keyframes_.find(kid);
+  if (pit == points_.end() || kit == keyframes_.end()) return false;
+  if (idx < 0 || idx >= static_cast<int>(kit->second.points.size())) return false;
+  if (kit->second.points[idx] != kNoPoint || pit->second.observations.count(kid)) return false;
+  kit->second.points[idx] = pid;
+  pit->second.observations[kid] = idx;
+  updateAppearanceLocked(pit->second);
+  bump();
+  return true;
+}
+
+void Map::eraseObservationLocked(PointId pid, KeyframeId kid) {
+  auto pit = points_.find(pid);
+  if (pit == points_.end()) return;
+  auto oit = pit->second.observations.find(kid);
+  if (oit == pit->second.observations.end()) return;
+  auto kit = keyframes_.find(kid);
+  if (kit != keyframes_.end() && kit->second.points[oit->second] == pid) kit->second.points[oit->second] = kNoPoint;
+  pit->second.observations.erase(oit);
+  if (pit->second.observations.size() < 2)
+    erasePointLocked(pid);
+  else
+    updateAppearanceLocked(pit->second);
+}
+
+void Map::eraseObservation(PointId pid, KeyframeId kid) {
+  std::unique_lock lock(mutex_);
+  eraseObservationLocked(pid, kid);
+  bump();
+}
+
+void Map::erasePointLocked(PointId pid) {
+  auto pit = points_.find(pid);
+  if (pit == points_.end()) return;
+  for (const auto& [kid, idx] : pit->second.observations) {
+    auto kit = keyframes_.find(kid);
+    if (kit != keyframes_.end() && kit->second.points[idx] == pid) kit->second.points[idx] = kNoPoint;
+  }
+  points_.erase(pit);
+}
+
+void Map::erasePoint(PointId pid) {
+  std::unique_lock lock(mutex_);
+  erasePointLocked(pid);
+  bump();
+}
+
+void Map::eraseKeyframe(KeyframeId kid, KeyframeId parent) {
+  std::unique_lock lock(mutex_);
+  auto kit = keyframes_.find(kid);
+  if (kit == keyframes_.end()) return;
+  auto pit = keyframes_.find(parent);
+  if (pit != keyframes_.end() && parent != kid)
+    retired_[kid] = {parent, pit->second.T_world_cam.inverse() * kit->second.T_world_cam};
+  const std::vector<PointId> pts = kit->second.points;
+  for (PointId pid : pts)
+    if (pid != kNoPoint) eraseObservationLocked(pid, kid);
+  keyframes_.erase(kid);
+  bump();
+}
+
+void Map::fusePoints(PointId from, PointId to) {
+  if (from == to) return;
+  std::unique_lock lock(mutex_);
+  auto fit = points_.find(from);
+  auto tit = points_.find(to);
+  if (fit == points_.end() || tit == points_.end()) return;
+  for (const auto& [kid, idx] : fit->second.observations) {
+    auto kit = keyframes_.find(kid);
+    if (kit == keyframes_.end()) continue;
+    kit->second.points[idx] = kNoPoint;
+    if (!tit->second.observations.count(kid)) {
+      tit->second.observations[kid] = idx;
+      kit->second.points[idx] = to;
+    }
+  }
+  tit->second.visible += fit->second.visible;
+  tit->second.found += fit->second.found;
+  points_.erase(fit);
+  updateAppearanceLocked(points_.at(to));
+  bump();
+}
+
+void Map::updateAppearanceLocked(MapPoint& p) {
+  std::vector<cv::Mat> descs;
+  Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+  for (const auto& [kid, idx] : p.observations) {
+    auto kit = keyframes_.find(kid);
+    if (kit == keyframes_.end()) continue;
+    const Keyframe& kf = kit->second;
+    if (!kf.frame->descriptors.empty() && idx < kf.frame->descriptors.rows)
+      descs.push_back(kf.frame->descriptors.row(idx));
+    const Eigen::Vector3d d = p.position - kf.centre();
+    if (d.norm() > 0) normal += d.normalized();
+  }
+  if (normal.norm() > 0) p.normal = normal.normalized();
+  if (descs.empty()) return;
+  // Medoid: the descriptor with the least median distance to the others (ORB-SLAM).
+  size_t best = 0;
+  int best_median = std::numeric_limits<int>::max();
+  for (size_t i = 0; i < descs.size(); ++i) {
+    std::vector<int> d;
+    d.reserve(descs.size());
+    for (size_t j = 0; j < descs.size(); ++j)
+      d.push_back(
+          static_cast<int>(cv::norm(descs[i], descs[j], descs[i].depth() == CV_8U ? cv::NORM_HAMMING : cv::NORM_L2)));
+    std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+    if (d[d.size() / 2] < best_median) {
+      best_median = d[d.size() / 2];
+      best = i;
+    }
+  }
+  p.descriptor = descs[best].clone();
+}
+
+void Map::updatePointAppearance(PointId pid) {
+  std::unique_lock lock(mutex_);
+  auto pit = points_.find(pid);
+  if (pit == points_.end()) return;
+  updateAppearanceLocked(pit->second);
+  bump();
+}
+
+void Map::setKeyframePose(KeyframeId id, const SE3& T) {
+  std::unique_lock lock(mutex_);
+  auto kit = keyframes_.find(id);
+  if (kit == keyframes_.end()) return;
+  kit->second.T_world_cam = T;
+  bump();
+}
+
+void Map::applyUpdate(const MapUpdate& u) {
+  std::unique_lock lock(mutex_);
+  for (const auto& [kid, T] : u.keyframe_poses) {
+    auto kit = keyframes_.find(kid);
+    if (kit != keyframes_.end() && !kit->second.fixed) kit->second.T_world_cam = T;
+  }
+  for (const auto& [pid, X] : u.point_positions) {
+    auto pit = points_.find(pid);
+    if (pit != points_.end() && X.allFinite()) pit->second.position = X;
+  }
+  for (const auto& [pid, kid] : u.erase_observations) eraseObservationLocked(pid, kid);
+  for (PointId pid : u.erase_points) erasePointLocked(pid);
+  // Normals follow the new geometry.
+  for (const auto& [pid, X] : u.point_positions) {
+    auto pit = points_.find(pid);
+    if (pit == points_.end()) continue;
+    Eigen::Vector3d n = Eigen::Vector3d::Zero();
+    for (const auto& [kid, idx] : pit->second.observations) {
+      auto kit = keyframes_.find(kid);
+      if (kit != keyframes_.end()) n += (pit->second.position - kit->second.centre()).normalized();
+    }
+    if (n.norm() > 0) pit->second.normal = n.normalized();
+  }
+  bump();
+}
+
+void Map::increaseVisible(const std::vector<PointId>& pids) {
+  std::unique_lock lock(mutex_);
+  for (PointId pid : pids) {
+    auto it = points_.find(pid);
+    if (it != points_.end()) ++it->second.visible;
+  }
+}
+
+void Map::increaseFound(const std::vector<PointId>& pids) {
+  std::unique_lock lock(mutex_);
+  for (PointId pid : pids) {
+    auto it = points_.find(pid);
+    if (it != points_.end()) ++it->second.found;
+  }
+}
+
+void Map::transform(const Sim3& T) {
+  std::unique_lock lock(mutex_);
+  for (auto& [id, kf] : keyframes_) kf.T_world_cam = T.transformPose(kf.T_world_cam);
+  for (auto& [id, r] : retired_) r.second = SE3(r.second.rotation(), T.scale() * r.second.translation());
+  for (auto& [id, p] : points_) p.position = T * p.position;
+  bump();
+}
+
+void Map::clear() {
+  std::unique_lock lock(mutex_);
+  keyframes_.clear();
+  points_.clear();
+  retired_.clear();
+  bump();
+}
+
+std::optional<SE3> Map::resolvePose(KeyframeId id) const {
+  std::shared_lock lock(mutex_);
+  SE3 T_chain;  // T_parent_..._id accumulated
+  for (int hops = 0; hops < 100000; ++hops) {
+    auto kit = keyframes_.find(id);
+    if (kit != keyframes_.end()) return kit->second.T_world_cam * T_chain;
+    auto rit = retired_.find(id);
+    if (rit == retired_.end()) return std::nullopt;
+    T_chain = rit->second.second * T_chain;
+    id = rit->second.first;
+  }
+  return std::nullopt;
+}
+
+std::optional<Keyframe> Map::keyframe(KeyframeId id) const {
+  std::shared_lock lock(mutex_);
+  auto it = keyframes_.find(id);
+  if (it == keyframes_.end()) return std::nullopt;
+  return it->second;
+}
+
+std::optional<MapPoint> Map::point(PointId id) const {
+  std::shared_lock lock(mutex_);
+  auto it = points_.find(id);
+  if (it == points_.end()) return std::nullopt;
+  return it->second;
+}
+
+std::vector<Keyframe> Map::keyframes() const {
+  std::shared_lock lock(mutex_);
+  std::vector<Keyframe> out;
+  out.reserve(keyframes_.size());
+  for (const auto& [id, kf] : keyframes_) out.push_back(kf);
+  return out;
+}
+
+std::vector<KeyframeId> Map::keyframeIds() const {
+  std::shared_lock lock(mutex_);
+  std::vector<KeyframeId> out;
+  for (const auto& [id, kf] : keyframes_) out.push_back(id);
+  return out;
+}
+
+std::vector<MapPoint> Map::points() const {
+  std::shared_lock lock(mutex_);
+  std::vector<MapPoint> out;
+  out.reserve(points_.size());
+  for (const auto& [id, p] : points_) out.push_back(p);
+  std::sort(out.begin(), out.end(), [](const MapPoint& a, const MapPoint& b) { return a.id < b.id; });
+  return out;
+}
+
+std::vector<MapPoint> Map::points(const std::vector<PointId>& ids) const {
+  std::shared_lock lock(mutex_);
+  std::vector<MapPoint> out;
+  out.reserve(ids.size());
+  for (PointId id : ids) {
+    auto it = points_.find(id);
+    if (it != points_.end()) out.push_back(it->second);
+  }
+  return out;
+}
+
+std::optional<KeyframeId> Map::lastKeyframeId() const {
+  std::shared_lock lock(mutex_);
+  if (keyframes_.empty()) return std::nullopt;
+  return keyframes_.rbegin()->first;
+}
+
+size_t Map::numKeyframes() const {
+  std::shared_lock lock(mutex_);
+  return keyframes_.size();
+}
+
+size_t Map::numPoints() const {
+  std::shared_lock lock(mutex_);
+  return points_.size();
+}
+
+std::vector<std::pair<KeyframeId, int>> Map::covisibleKeyframes(KeyframeId id, int min_shared) const {
+  std::shared_lock lock(mutex_);
+  auto kit = keyframes_.find(id);
+  if (kit == keyframes_.end()) return {};
+  std::map<KeyframeId, int> counts;
+  for (PointId pid : kit->second.points) {
+    if (pid == kNoPoint) continue;
+    auto pit = points_.find(pid);
+    if (pit == points_.end()) continue;
+    for (const auto& [other, idx] : pit->second.observations)
+      if (other != id) ++counts[other];
+  }
+  std::vector<std::pair<KeyframeId, int>> out;
+  for (const auto& [k, c] : counts)
+    if (c >= min_shared) out.emplace_back(k, c);
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) {
+    return a.second != b.second ? a.second > b.second : a.first > b.first;
+  });
+  return out;
+}
+
+std::vector<PointId> Map::pointsSeenBy(const std::vector<KeyframeId>& kfs) const {
+  std::shared_lock lock(mutex_);
+  std::set<PointId> ids;
+  for (KeyframeId k : kfs) {
+    auto kit = keyframes_.find(k);
+    if (kit == keyframes_.end()) continue;
+    for (PointId pid : kit->second.points)
+      if (pid != kNoPoint && points_.count(pid)) ids.insert(pid);
+  }
+  return {ids.begin(), ids.end()};
+}
+
+}  // namespace nerfslam

@@ -1,0 +1,127 @@
+#include "nerfslam/mapping/mapping_thread.h"
+
+#include <algorithm>
+
+#include <spdlog/spdlog.h>
+
+#include "nerfslam/core/error.h"
+
+namespace nerfslam {
+
+std::shared_ptr<KeyframeBus::Queue> KeyframeBus::subscribe(std::size_t capacity, OverflowPolicy policy) {
+  auto q = std::make_shared<Queue>(capacity, policy);
+  std::lock_guard<std::mutex> lock(mutex_);
+  queues_.push_back(q);
+  return q;
+}
+
+void KeyframeBus::unsubscribe(const std::shared_ptr<Queue>& queue) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  queues_.erase(std::remove(queues_.begin(), queues_.end(), queue), queues_.end());
+}
+
+int KeyframeBus::publish(const KeyframeEvent& event) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  int n = 0;
+  for (auto& q : queues_) n += q->tryPush(event);
+  return n;
+}
+
+void KeyframeBus::close() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto& q : queues_) q->close();
+}
+
+std::size_t KeyframeBus::numSubscribers() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return queues_.size();
+}
+
+MappingThread::MappingThread(Map& map, MappingOptions options, std::size_t queue_capacity)
+    : map_(map), mapper_(map, std::move(options)), queue_(queue_capacity, OverflowPolicy::kDropNewest) {}
+
+MappingThread::~MappingThread() { stop(); }
+
+void MappingThread::start() {
+  if (started_) return;
+  started_ = true;
+  thread_running_ = true;
+  thread_ = std::thread([this] {
+    run();
+    thread_running_ = false;
+    idle_cv_.notify_all();
+  });
+}
+
+void MappingThread::stop() {
+  queue_.close();
+  if (thread_.joinable()) thread_.join();
+  bus_.close();
+}
+
+bool MappingThread::submit(KeyframeInsertion kf) {
+  if (!kf.frame) fail("MappingThread::submit: keyframe without a frame");
+  pending_.fetch_add(1);
+  const bool ok = queue_.tryPush(std::move(kf));
+  if (!ok) pending_.fetch_sub(1);
+  if (!ok) spdlog::debug("mapping busy: keyframe dropped ({} so far)", queue_.dropped());
+  return ok;
+}
+
+KeyframeId MappingThread::insert(KeyframeInsertion in) {
+  Keyframe kf;
+  kf.frame = in.frame;
+  kf.T_world_cam = in.T_world_cam;
+  kf.points.assign(in.frame->keypoints.size(), kNoPoint);
+  for (const auto& [idx, pid] : in.matches)
+    if (idx >= 0 && idx < static_cast<int>(kf.points.size())) kf.points[idx] = pid;
+  const KeyframeId id = map_.addKeyframe(std::move(kf));
+  bus_.publish({id, in.T_world_cam, in.frame});
+  return id;
+}
+
+KeyframeId MappingThread::insertNow(KeyframeInsertion kf, bool process) {
+  const KeyframeId id = insert(std::move(kf));
+  if (process) {
+    MappingStats s = mapper_.processKeyframe(id);
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    stats_.push_back(s);
+  }
+  return id;
+}
+
+void MappingThread::run() {
+  for (;;) {
+    auto item = queue_.pop();
+    if (!item) break;
+    try {
+      const KeyframeId id = insert(std::move(*item));
+      MappingStats s = mapper_.processKeyframe(id);
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      stats_.push_back(s);
+    } catch (const std::exception& e) {
+      spdlog::error("mapping thread: {}", e.what());
+    }
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      pending_.fetch_sub(1);
+    }
+    idle_cv_.notify_all();
+  }
+  idle_cv_.notify_all();
+}
+
+bool MappingThread::idle() const { return pending_.load() == 0; }
+
+void MappingThread::waitIdle() const {
+  std::unique_lock<std::mutex> lock(stats_mutex_);
+  while (pending_.load() != 0 && !(queue_.closed() && queue_.empty() && !thread_running_.load()))
+    idle_cv_.wait_for(lock, std::chrono::milliseconds(5));
+}
+
+std::vector<MappingStats> MappingThread::stats() const {
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  return stats_;
+}
+
+}  // namespace nerfslam

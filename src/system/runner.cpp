@@ -1,0 +1,285 @@
+#include "nerfslam/system/runner.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <mutex>
+#include <thread>
+
+#include <spdlog/spdlog.h>
+
+#include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/core/options_yaml.h"
+#include "nerfslam/eval/trajectory_metrics.h"
+#include "nerfslam/io/dataset.h"
+#include "nerfslam/io/trajectory.h"
+#include "nerfslam/mapping/bounded_queue.h"
+
+namespace nerfslam {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+struct InputFrame {
+  std::size_t index = 0;
+  double timestamp = 0;
+  cv::Mat image;
+};
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const double pos = q * (v.size() - 1);
+  const std::size_t lo = static_cast<std::size_t>(std::floor(pos));
+  const std::size_t hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (pos - lo) * (v[hi] - v[lo]);
+}
+
+// Mean intensity and a sharpness measure to explain failures ("black", "saturated", "blurred").
+std::string describeImageProblem(const cv::Mat& gray) {
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(gray, mean, stddev);
+  if (mean[0] < 8 && stddev[0] < 4) return "black";
+  if (mean[0] > 247 && stddev[0] < 4) return "saturated";
+  if (stddev[0] < 2) return "uniform";
+  return "";
+}
+
+}  // namespace
+
+void writeMapPly(const std::filesystem::path& path, const Map& map) {
+  const auto points = map.points();
+  writeFileAtomic(path, [&](std::ostream& os) {
+    os << "ply\nformat ascii 1.0\ncomment nerfslam sparse map (world frame, map units)\n";
+    os << "element vertex " << points.size() << "\n";
+    os << "property double x\nproperty double y\nproperty double z\nproperty int observations\nend_header\n";
+    char buf[160];
+    for (const auto& p : points) {
+      std::snprintf(buf, sizeof buf, "%.9g %.9g %.9g %d\n", p.position.x(), p.position.y(), p.position.z(),
+                    static_cast<int>(p.observations.size()));
+      os << buf;
+    }
+  });
+}
+
+RunResult runSlam(const RunOptions& ro) {
+  if (ro.out.empty()) fail("run: --out is required");
+  SystemOptions sys;
+  if (ro.system) {
+    sys = *ro.system;
+  } else if (ro.config) {
+    loadOptionsFile(*ro.config, sys);
+  }
+  validateOptions(sys, ro.config ? ro.config->string() : std::string("options"));
+  DatasetOptions dopt;
+  dopt.camera_override = ro.camera;
+  dopt.max_frames = ro.max_frames;
+  auto ds = openDataset(ro.dataset, dopt);
+  ensureDirectory(ro.out);
+  const Camera& camera = ds->camera();
+  spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
+  spdlog::info("options:\n{}", printOptions(sys));
+
+  SlamSystem slam(camera, sys);
+  BoundedQueue<InputFrame> frames(static_cast<std::size_t>(sys.frame_queue),
+                                  ro.realtime ? OverflowPolicy::kDropOldest : OverflowPolicy::kDropNewest);
+  std::atomic<std::size_t> processed{0};
+  std::atomic<std::size_t> frames_in{0};
+  std::atomic<std::size_t> out_of_order{0};
+  std::atomic<bool> abort_run{false};
+  std::mutex failure_mutex;
+  std::string read_failure;
+  std::string tracking_failure;
+  std::vector<std::string> image_problems(ds->size());
+  const bool lockstep = !ro.realtime && sys.lockstep;
+
+  // Reader.
+  std::thread reader([&] {
+    const auto wall0 = Clock::now();
+    double t_first = 0, last_ts = -std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < ds->size() && !abort_run; ++i) {
+      InputFrame f;
+      try {
+        DatasetFrame df = ds->load(i, ImageMode::kGray);
+        f.index = i;
+        f.timestamp = df.timestamp;
+        f.image = std::move(df.image);
+      } catch (const std::exception& e) {
+        std::lock_guard<std::mutex> lock(failure_mutex);
+        read_failure = e.what();
+        spdlog::error("{}", e.what());
+        break;
+      }
+      if (!(f.timestamp > last_ts)) {
+        ++out_of_order;
+        spdlog::warn("frame {}: timestamp {:.6f} not after the previous {:.6f}; skipped", i, f.timestamp, last_ts);
+        continue;
+      }
+      last_ts = f.timestamp;
+      image_problems[i] = describeImageProblem(f.image);
+      if (i == 0) t_first = f.timestamp;
+      if (ro.realtime) {
+        const auto due =
+            wall0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(f.timestamp - t_first));
+        std::this_thread::sleep_until(due);
+        frames.tryPush(std::move(f));  // drops the oldest waiting frame when tracking lags
+        ++frames_in;
+      } else {
+        if (!frames.push(std::move(f))) break;
+        ++frames_in;
+        if (lockstep) {
+          while (processed.load() < frames_in.load() && !abort_run)
+            std::this_thread::sleep_for(std::chrono::microseconds(200));
+          slam.waitMappingIdle();
+        }
+      }
+    }
+    frames.close();
+  });
+
+  // Tracking thread.
+  std::vector<double> tracking_ms;
+  const auto run0 = Clock::now();
+  std::thread tracker([&] {
+    auto last_print = Clock::now();
+    while (auto f = frames.pop()) {
+      try {
+        const FrameRecord r = slam.trackFrame(f->image, f->timestamp, f->index);
+        tracking_ms.push_back(r.tracking_ms);
+      } catch (const std::exception& e) {
+        std::lock_guard<std::mutex> lock(failure_mutex);
+        tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
+        spdlog::error("{}", tracking_failure);
+        abort_run = true;
+        ++processed;
+        frames.close();
+        break;
+      }
+      ++processed;
+      if (ro.progress && (Clock::now() - last_print > std::chrono::seconds(1))) {
+        last_print = Clock::now();
+        const double secs = std::chrono::duration<double>(Clock::now() - run0).count();
+        std::fprintf(stderr, "frame %zu/%zu  %.1f frames/s  keyframes %zu  map points %zu  %s\n", f->index + 1,
+                     ds->size(), processed.load() / std::max(secs, 1e-9), slam.map().numKeyframes(),
+                     slam.map().numPoints(), toString(slam.state()));
+      }
+    }
+  });
+  reader.join();
+  tracker.join();
+  const double wall_s = std::chrono::duration<double>(Clock::now() - run0).count();
+  slam.finish(true);
+
+  // Outputs.
+  const Trajectory traj = slam.trajectory();
+  const auto& records = slam.records();
+  nlohmann::json rep;
+  rep["dataset"] = ds->root().string();
+  rep["dataset_kind"] = ds->kind();
+  rep["frames"] = ds->size();
+  rep["frames_processed"] = processed.load();
+  rep["frames_dropped"] = ro.realtime ? frames.dropped() : 0;
+  rep["frames_out_of_order"] = out_of_order.load();
+  rep["frames_tracked"] = traj.size();
+  rep["initialized"] = slam.initialized();
+  rep["initializations"] = slam.initializationCount();
+  rep["relocalizations"] = slam.relocalizations();
+  rep["keyframes"] = slam.map().numKeyframes();
+  rep["keyframes_dropped"] = slam.droppedKeyframes();
+  rep["map_points"] = slam.map().numPoints();
+  rep["realtime"] = ro.realtime;
+  rep["wall_time_s"] = wall_s;
+  rep["frames_per_second"] = processed.load() / std::max(wall_s, 1e-9);
+  rep["tracking_ms_median"] = percentile(tracking_ms, 0.5);
+  rep["tracking_ms_p99"] = percentile(tracking_ms, 0.99);
+  std::vector<double> ba_ms, map_ms;
+  for (const auto& s : slam.mapping().stats()) {
+    ba_ms.push_back(s.ba_ms);
+    map_ms.push_back(s.total_ms);
+  }
+  rep["ba_ms_median"] = percentile(ba_ms, 0.5);
+  rep["ba_ms_max"] = ba_ms.empty() ? 0.0 : *std::max_element(ba_ms.begin(), ba_ms.end());
+  rep["mapping_ms_median"] = percentile(map_ms, 0.5);
+  int first_tracked = -1;
+  for (const auto& r : records)
+    if (r.tracked) {
+      first_tracked = static_cast<int>(r.index);
+      break;
+    }
+  rep["first_tracked_frame"] = first_tracked;
+  // Frames after the first tracked one that were not tracked.
+  std::size_t untracked_after = 0;
+  if (first_tracked >= 0)
+    for (const auto& r : records) untracked_after += (static_cast<int>(r.index) > first_tracked && !r.tracked);
+  rep["frames_lost_after_init"] = untracked_after;
+
+  std::string failure;
+  if (!read_failure.empty()) failure = read_failure;
+  if (!tracking_failure.empty()) failure = tracking_failure;
+  if (failure.empty() && !slam.initialized()) {
+    std::size_t black = 0, saturated = 0, uniform = 0;
+    for (const auto& p : image_problems) {
+      black += p == "black";
+      saturated += p == "saturated";
+      uniform += p == "uniform";
+    }
+    failure = fmt::format("not initialised after {} frames", processed.load());
+    if (black + saturated + uniform > 0)
+      failure += fmt::format(" ({} black, {} saturated, {} featureless frames)", black, saturated, uniform);
+    if (!slam.lastInitMessage().empty()) failure += "; last attempt: " + slam.lastInitMessage();
+  }
+  if (!failure.empty()) rep["failure"] = failure;
+
+  if (ds->hasGroundTruth() && traj.size() >= 3) {
+    Trajectory ref;
+    for (std::size_t i = 0; i < ds->size(); ++i)
+      if (auto gt = ds->groundTruth(i)) ref.push_back({ds->timestamp(i), *gt});
+    try {
+      eval::TrajectoryEvalOptions eo;
+      eo.align = "sim3";
+      eo.max_dt = 1e-3;
+      const eval::TrajectoryReport tr = eval::evaluateTrajectory(ref, traj, eo);
+      rep["ate_rmse_m"] = tr.ape.rmse;
+      rep["ate_max_m"] = tr.ape.max;
+      rep["ate_scale"] = tr.scale;
+      rep["ate_matched"] = tr.matched;
+      rep["rpe_trans"] = tr.has_rpe ? tr.rpe_translation.rmse : 0.0;
+      rep["rpe_rot_deg"] = tr.has_rpe ? tr.rpe_rotation_deg.rmse : 0.0;
+      rep["path_length_m"] = tr.ref_path_length;
+      rep["ate_percent_of_path"] = tr.ape_rmse_percent;
+      // Scene extent (largest distance between ground-truth centres) for multi-view sets.
+      double extent = 0;
+      for (std::size_t a = 0; a < ref.size(); ++a)
+        for (std::size_t b = a + 1; b < ref.size(); ++b)
+          extent = std::max(extent, (ref[a].pose.translation() - ref[b].pose.translation()).norm());
+      rep["gt_extent_m"] = extent;
+      rep["ate_max_percent_of_extent"] = extent > 0 ? 100.0 * tr.ape.max / extent : 0.0;
+    } catch (const std::exception& e) {
+      rep["eval_error"] = e.what();
+    }
+  }
+
+  writeTumTrajectory(ro.out / "trajectory.txt", traj);
+  writeTumTrajectory(ro.out / "keyframes.txt", slam.keyframeTrajectory());
+  writeMapPly(ro.out / "map_points.ply", slam.map());
+  writeStringAtomic(ro.out / "report.json", rep.dump(2) + "\n");
+
+  std::fprintf(stderr, "done: %zu/%zu frames tracked, %zu keyframes, %zu map points, %.1f frames/s%s\n", traj.size(),
+               ds->size(), slam.map().numKeyframes(), slam.map().numPoints(), processed.load() / std::max(wall_s, 1e-9),
+               failure.empty() ? "" : (" — " + failure).c_str());
+  if (rep.contains("ate_rmse_m"))
+    std::fprintf(stderr, "ATE (Sim3) %.4f m = %.3f%% of %.1f m path, scale %.4f\n", rep["ate_rmse_m"].get<double>(),
+                 rep["ate_percent_of_path"].get<double>(), rep["path_length_m"].get<double>(),
+                 rep["ate_scale"].get<double>());
+  RunResult res;
+  res.report = rep;
+  res.initialized = slam.initialized();
+  res.exit_code = (!read_failure.empty() || !tracking_failure.empty()) ? 1 : 0;
+  return res;
+}
+
+}  // namespace nerfslam

@@ -1,0 +1,176 @@
+#include "nerfslam/mapping/bundle_adjustment.h"
+
+#include <gtest/gtest.h>
+
+#include <ceres/manifold.h>
+
+#include "nerfslam/core/error.h"
+
+#include <random>
+
+namespace nerfslam {
+namespace {
+
+// Cameras on an arc looking at a cloud of points around (0, 0, 5).
+struct Scene {
+  BaProblem truth;
+  BaProblem noisy;
+  std::vector<bool> is_outlier;
+};
+
+Scene makeScene(int n_cams, int n_points, double pixel_noise, double outlier_fraction, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> gauss(0, 1);
+  std::uniform_real_distribution<double> uni(-1, 1);
+  Scene s;
+  BaProblem& t = s.truth;
+  t.fx = t.fy = 500;
+  t.cx = 320;
+  t.cy = 240;
+  for (int i = 0; i < n_cams; ++i) {
+    const double a = -0.4 + 0.8 * i / std::max(1, n_cams - 1);
+    const Eigen::Vector3d c(5 * std::sin(a), 0.3 * std::sin(3 * a), 5 - 5 * std::cos(a));
+    // Look at (0, 0, 5).
+    const Eigen::Vector3d z = (Eigen::Vector3d(0, 0, 5) - c).normalized();
+    const Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(z).normalized();
+    const Eigen::Vector3d y = z.cross(x);
+    Eigen::Matrix3d R;
+    R << x, y, z;
+    t.cameras.push_back({SE3(R, c), i == 0});
+  }
+  for (int j = 0; j < n_points; ++j)
+    t.points.push_back({Eigen::Vector3d(2 * uni(rng), 1.5 * uni(rng), 5 + 2 * uni(rng)), false});
+  for (int i = 0; i < n_cams; ++i)
+    for (int j = 0; j < n_points; ++j) {
+      const Eigen::Vector3d pc = t.cameras[i].T_world_cam.inverse() * t.points[j].position;
+      const Eigen::Vector2d uv(t.fx * pc.x() / pc.z() + t.cx, t.fy * pc.y() / pc.z() + t.cy);
+      if (uv.x() < 0 || uv.y() < 0 || uv.x() > 640 || uv.y() > 480) continue;
+      t.observations.push_back({i, j, uv, 1.0});
+    }
+  s.noisy = t;
+  for (auto& o : s.noisy.observations) {
+    const bool outlier = uni(rng) * 0.5 + 0.5 < outlier_fraction;
+    s.is_outlier.push_back(outlier);
+    if (outlier)
+      o.uv += Eigen::Vector2d(uni(rng), uni(rng)) * 40.0 + Eigen::Vector2d(10, 10);
+    else
+      o.uv += Eigen::Vector2d(gauss(rng), gauss(rng)) * pixel_noise;
+  }
+  for (size_t i = 1; i < s.noisy.cameras.size(); ++i) {
+    Vector6d xi;
+    xi << 0.05 * gauss(rng), 0.05 * gauss(rng), 0.05 * gauss(rng), 0.01 * gauss(rng), 0.01 * gauss(rng),
+        0.01 * gauss(rng);
+    s.noisy.cameras[i].T_world_cam = s.noisy.cameras[i].T_world_cam * SE3::exp(xi);
+  }
+  for (auto& p : s.noisy.points) p.position += Eigen::Vector3d(gauss(rng), gauss(rng), gauss(rng)) * 0.05;
+  return s;
+}
+
+TEST(BundleAdjustment, RecoversPosesAndPointsToNoiseLevelWithOutliers) {
+  const double noise = 0.5;
+  Scene s = makeScene(8, 300, noise, 0.05, 7);
+  // Fix the second camera too: with noisy observations monocular BA has a free scale; fixing two
+  // cameras fixes the gauge (7 dof) so poses are comparable directly.
+  s.noisy.cameras[1].T_world_cam = s.truth.cameras[1].T_world_cam;
+  s.noisy.cameras[1].fixed = true;
+  BundleAdjustmentOptions opt;
+  opt.max_iterations = 50;
+  opt.refine_iterations = 20;
+  opt.max_solver_time_s = 20;
+  const BaResult r = bundleAdjust(s.noisy, opt);
+  EXPECT_TRUE(r.converged);
+  EXPECT_GT(r.initial_rmse_px, 5.0);
+  // Inlier RMSE of 2-D Gaussian noise is noise * sqrt(2) (minus the dof absorbed by the fit).
+  EXPECT_LT(r.final_rmse_px, noise * std::sqrt(2.0) * 1.05);
+  EXPECT_GT(r.final_rmse_px, noise * std::sqrt(2.0) * 0.7);
+  // Outliers found: most of the injected ones flagged, few inliers lost.
+  int caught = 0, n_out = 0, false_alarm = 0;
+  for (size_t k = 0; k < s.is_outlier.size(); ++k) {
+    n_out += s.is_outlier[k];
+    if (s.is_outlier[k] && !r.inlier[k]) ++caught;
+    if (!s.is_outlier[k] && !r.inlier[k]) ++false_alarm;
+  }
+  EXPECT_GT(n_out, 20);
+  EXPECT_GE(caught, n_out * 0.95);
+  EXPECT_LT(false_alarm, 0.03 * (s.is_outlier.size() - n_out));
+  for (size_t i = 0; i < s.truth.cameras.size(); ++i) {
+    const SE3 d = s.truth.cameras[i].T_world_cam.inverse() * s.noisy.cameras[i].T_world_cam;
+    EXPECT_LT(d.translation().norm(), 0.01) << "camera " << i;
+    EXPECT_LT(d.log().tail<3>().norm(), 0.002) << "camera " << i;
+  }
+  double err = 0;
+  for (size_t j = 0; j < s.truth.points.size(); ++j)
+    err += (s.truth.points[j].position - s.noisy.points[j].position).norm();
+  EXPECT_LT(err / s.truth.points.size(), 0.02);
+}
+
+TEST(BundleAdjustment, NoiseFreeConvergesToZeroError) {
+  Scene s = makeScene(5, 100, 0.0, 0.0, 3);
+  s.noisy.cameras[1].T_world_cam = s.truth.cameras[1].T_world_cam;
+  s.noisy.cameras[1].fixed = true;
+  BundleAdjustmentOptions opt;
+  opt.max_iterations = 100;
+  opt.max_solver_time_s = 20;
+  const BaResult r = bundleAdjust(s.noisy, opt);
+  EXPECT_LT(r.final_rmse_px, 1e-4);
+  EXPECT_EQ(r.outliers, 0);
+  for (size_t i = 0; i < s.truth.cameras.size(); ++i)
+    EXPECT_TRUE(s.truth.cameras[i].T_world_cam.isApprox(s.noisy.cameras[i].T_world_cam, 1e-5)) << i;
+}
+
+TEST(BundleAdjustment, FixedCamerasAndPointsStayPut) {
+  Scene s = makeScene(4, 50, 1.0, 0.0, 5);
+  for (auto& p : s.noisy.points) p.fixed = true;
+  const SE3 before0 = s.noisy.cameras[0].T_world_cam;
+  const Eigen::Vector3d p0 = s.noisy.points[0].position;
+  bundleAdjust(s.noisy, {});
+  EXPECT_TRUE(before0.isApprox(s.noisy.cameras[0].T_world_cam, 1e-12));
+  EXPECT_EQ(p0, s.noisy.points[0].position);
+}
+
+TEST(BundleAdjustment, RejectsBadIndices) {
+  BaProblem p;
+  p.cameras.push_back({});
+  p.observations.push_back({0, 3, Eigen::Vector2d(1, 1), 1.0});
+  EXPECT_THROW(bundleAdjust(p, {}), Error);
+}
+
+TEST(PoseManifold, PlusMinusConsistentAndMatchesSE3) {
+  auto m = makePoseManifold();
+  ASSERT_EQ(m->AmbientSize(), 7);
+  ASSERT_EQ(m->TangentSize(), 6);
+  std::mt19937 rng(11);
+  std::normal_distribution<double> g(0, 0.3);
+  for (int trial = 0; trial < 50; ++trial) {
+    Vector6d xi;
+    for (int k = 0; k < 6; ++k) xi(k) = g(rng) * 3;
+    const SE3 T = SE3::exp(xi);
+    double x[7], y[7];
+    poseToParams(T, x);
+    EXPECT_TRUE(poseFromParams(x).isApprox(T, 1e-12));
+    double delta[6], back[6];
+    for (double& d : delta) d = g(rng) * 0.5;
+    ASSERT_TRUE(m->Plus(x, delta, y));
+    ASSERT_TRUE(m->Minus(y, x, back));
+    for (int k = 0; k < 6; ++k) EXPECT_NEAR(back[k], delta[k], 1e-9);
+    // Plus then Minus of zero is the identity.
+    double zero[6] = {0, 0, 0, 0, 0, 0}, z[7];
+    ASSERT_TRUE(m->Plus(x, zero, z));
+    for (int k = 0; k < 7; ++k) EXPECT_NEAR(z[k], x[k], 1e-12);
+    // PlusJacobian against central finite differences.
+    double J[42];
+    ASSERT_TRUE(m->PlusJacobian(x, J));
+    const double h = 1e-6;
+    for (int c = 0; c < 6; ++c) {
+      double dp[6] = {0, 0, 0, 0, 0, 0}, dm[6] = {0, 0, 0, 0, 0, 0}, yp[7], ym[7];
+      dp[c] = h;
+      dm[c] = -h;
+      m->Plus(x, dp, yp);
+      m->Plus(x, dm, ym);
+      for (int r = 0; r < 7; ++r) EXPECT_NEAR(J[r * 6 + c], (yp[r] - ym[r]) / (2 * h), 1e-6);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace nerfslam

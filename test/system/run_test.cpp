@@ -1,0 +1,156 @@
+// End-to-end `nerfslam run` on real data and on bad input.
+#include <gtest/gtest.h>
+
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/io/trajectory.h"
+#include "test_support.h"
+
+// Measured through `nerfslam run` on the first 75 frames (full-length figures in the report): kept well
+// under 60 s on a loaded 2-core machine.
+#define TSUKUBA_FRAMES 75
+
+namespace nerfslam {
+namespace {
+
+nlohmann::json readReport(const std::filesystem::path& dir) {
+  std::ifstream in(dir / "report.json");
+  EXPECT_TRUE(in.good()) << "no report.json in " << dir;
+  if (!in.good()) return {};
+  return nlohmann::json::parse(in);
+}
+
+TEST(RunSystem, Kitti06First51TracksEveryFrameAccurately) {
+  NERFSLAM_REQUIRE_DATA(data, "kitti06_first51");
+  test::TempDir out;
+  const auto r = test::runCli("run --dataset kitti:" + data.string() + " --out " + out.path().string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto rep = readReport(out.path());
+  EXPECT_TRUE(rep.at("initialized").get<bool>());
+  EXPECT_EQ(rep.at("frames").get<int>(), 51);
+  EXPECT_EQ(rep.at("frames_tracked").get<int>(), 51) << r.output;
+  // Measured 0.056 % (ORB-SLAM2 peer: 0.05 %); the target is 0.2 %.
+  EXPECT_LT(rep.at("ate_percent_of_path").get<double>(), 0.15) << rep.dump(2);
+  EXPECT_GT(rep.at("keyframes").get<int>(), 5);
+  EXPECT_GT(rep.at("map_points").get<int>(), 1000);
+  for (const char* k :
+       {"tracking_ms_median", "tracking_ms_p99", "ba_ms_median", "ate_rmse_m", "ate_scale", "rpe_trans", "rpe_rot_deg"})
+    EXPECT_TRUE(rep.contains(k)) << k;
+  // The trajectory file has one TUM pose per tracked frame, the map a PLY header with its count.
+  EXPECT_EQ(readTumTrajectory(out / "trajectory.txt").size(), 51u);
+  EXPECT_EQ(readTumTrajectory(out / "keyframes.txt").size(), rep.at("keyframes").get<size_t>());
+  std::ifstream ply(out / "map_points.ply");
+  std::string line;
+  std::getline(ply, line);
+  EXPECT_EQ(line, "ply");
+}
+
+TEST(RunSystem, NewTsukubaFirst75) {
+  NERFSLAM_REQUIRE_DATA(data, "new_tsukuba_150");
+  test::TempDir out;
+  const auto r = test::runCli("run --dataset tsukuba:" + data.string() + " --max-frames " +
+                              std::to_string(TSUKUBA_FRAMES) + " --out " + out.path().string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto rep = readReport(out.path());
+  EXPECT_TRUE(rep.at("initialized").get<bool>());
+  // Measured: 75/75 tracked (the 11 frames between the initialisation pair are tracked retroactively), 0.094 %.
+  EXPECT_EQ(rep.at("frames_tracked").get<int>(), TSUKUBA_FRAMES) << r.output;
+  EXPECT_LT(rep.at("ate_percent_of_path").get<double>(), 0.3) << rep.dump(2);
+}
+
+TEST(RunSystem, EurocStaticPieceDoesNotInitialise) {
+  NERFSLAM_REQUIRE_DATA(data, "euroc_V1_01_piece");
+  test::TempDir out;
+  const auto r = test::runCli("run --dataset euroc:" + data.string() + " --out " + out.path().string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto rep = readReport(out.path());
+  EXPECT_FALSE(rep.at("initialized").get<bool>());
+  EXPECT_EQ(rep.at("frames_tracked").get<int>(), 0);
+  EXPECT_NE(rep.at("failure").get<std::string>().find("static"), std::string::npos) << rep.dump(2);
+  // The trajectory file exists and holds no pose.
+  std::ifstream traj(out / "trajectory.txt");
+  ASSERT_TRUE(traj.good());
+  std::string line;
+  int poses = 0;
+  while (std::getline(traj, line)) poses += !line.empty() && line[0] != '#';
+  EXPECT_EQ(poses, 0);
+}
+
+// An image folder of `n` frames made by `make(i)`, with times.txt and a camera YAML.
+std::filesystem::path makeFolder(const test::TempDir& dir, int n, const std::function<cv::Mat(int)>& make) {
+  const auto images = dir / "seq";
+  std::filesystem::create_directories(images);
+  std::ofstream times(images / "times.txt");
+  for (int i = 0; i < n; ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "%06d.png", i);
+    cv::imwrite((images / name).string(), make(i));
+    times << 0.1 * i << "\n";
+  }
+  saveCameraYaml(Camera::pinhole(320, 240, 300, 300, 159.5, 119.5), dir / "camera.yaml");
+  return images;
+}
+
+TEST(RunSystem, BlackFramesReportFailureWithoutInventingMotion) {
+  test::TempDir dir;
+  const auto images = makeFolder(dir, 6, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(0)); });
+  const auto out = dir / "out";
+  const auto r = test::runCli("run --dataset folder:" + images.string() + " --camera " +
+                              (dir / "camera.yaml").string() + " --out " + out.string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto rep = readReport(out);
+  EXPECT_FALSE(rep.at("initialized").get<bool>());
+  EXPECT_EQ(rep.at("frames_tracked").get<int>(), 0);
+  EXPECT_NE(rep.at("failure").get<std::string>().find("6 black"), std::string::npos) << rep.dump(2);
+}
+
+TEST(RunSystem, SaturatedFramesReportFailure) {
+  test::TempDir dir;
+  const auto images = makeFolder(dir, 4, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(255)); });
+  const auto out = dir / "out";
+  const auto r = test::runCli("run --dataset folder:" + images.string() + " --camera " +
+                              (dir / "camera.yaml").string() + " --out " + out.string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto rep = readReport(out);
+  EXPECT_FALSE(rep.at("initialized").get<bool>());
+  EXPECT_NE(rep.at("failure").get<std::string>().find("4 saturated"), std::string::npos) << rep.dump(2);
+}
+
+TEST(RunSystem, CalibrationOfAnotherSizeIsAClearError) {
+  test::TempDir dir;
+  const auto images = makeFolder(dir, 3, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(100)); });
+  saveCameraYaml(Camera::pinhole(640, 480, 500, 500, 319.5, 239.5), dir / "wrong.yaml");
+  const auto out = dir / "out";
+  const auto r = test::runCli("run --dataset folder:" + images.string() + " --camera " + (dir / "wrong.yaml").string() +
+                              " --out " + out.string());
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("error:"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("640"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(out / "trajectory.txt"));
+}
+
+TEST(RunSystem, SequenceEndingBeforeInitialisation) {
+  NERFSLAM_REQUIRE_DATA(data, "kitti06_first51");
+  test::TempDir out;
+  const auto r = test::runCli("run --dataset kitti:" + data.string() + " --max-frames 1 --out " + out.path().string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto rep = readReport(out.path());
+  EXPECT_FALSE(rep.at("initialized").get<bool>());
+  EXPECT_EQ(rep.at("frames_tracked").get<int>(), 0);
+  EXPECT_NE(rep.at("failure").get<std::string>().find("not initialised after 1 frames"), std::string::npos)
+      << rep.dump(2);
+}
+
+TEST(RunSystem, UnknownDatasetKindIsAClearError) {
+  test::TempDir out;
+  const auto r = test::runCli("run --dataset nosuchkind:/tmp --out " + out.path().string());
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("error:"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace nerfslam
