@@ -246,7 +246,7 @@ void RadianceField::queryDensity(const float* pos, size_t n, float* sigma) const
   const float clampv = float(f.cfg.max_log_density);
   for (size_t s0 = 0; s0 < n; s0 += kTile) {
     const size_t m = std::min(kTile, n - s0);
-    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile, n - s0);
     densityTile(f, m, encT.data(), h1.data(), d.data(), kDensityOutputs);
     for (size_t i = 0; i < m; ++i) sigma[s0 + i] = std::exp(std::min(d[i * kDensityOutputs], clampv));
   }
@@ -260,7 +260,7 @@ void RadianceField::query(const float* pos, const float* dir, size_t n, float* s
   const float clampv = float(f.cfg.max_log_density);
   for (size_t s0 = 0; s0 < n; s0 += kTile) {
     const size_t m = std::min(kTile, n - s0);
-    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile, n - s0);
     densityTile(f, m, encT.data(), h1.data(), cin.data() + kShCoeffs, kColorIn);
     shEncodeBatch(dir + 3 * s0, m, cin.data(), kColorIn);
     colorTile(f, m, cin.data(), c1.data(), c2.data(), logits.data());
@@ -280,7 +280,7 @@ void RadianceField::densityGradient(const float* pos, size_t n, float* grad) con
   const float clampv = float(f.cfg.max_log_density);
   for (size_t s0 = 0; s0 < n; s0 += kTile) {
     const size_t m = std::min(kTile, n - s0);
-    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile, n - s0);
     densityTile(f, m, encT.data(), h1.data(), d.data(), kDensityOutputs);
     std::fill(dd.begin(), dd.end(), 0.f);
     // trunc_exp: d sigma / d log-density = exp(min(x, clamp)) = sigma.
@@ -331,7 +331,7 @@ void RadianceField::forward(Workspace& wsp, const float* pos, const float* dir, 
     const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
     float* encT = ws.enc.data() + t * E * kTile;
     float* cin = ws.cin.data() + s0 * kColorIn;
-    hashEncode(f.grid(), pos + 3 * s0, m, encT, kTile);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT, kTile, n - s0);
     densityTile(f, m, encT, ws.h1.data() + s0 * H, cin + kShCoeffs, kColorIn);
     shEncodeBatch(dir + 3 * s0, m, cin, kColorIn);
     colorTile(f, m, cin, ws.c1.data() + s0 * H, ws.c2.data() + s0 * H, logits.data());
@@ -409,7 +409,7 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
             H));
     gemm(mm(E, H, m, encT, kTile, 1, ws.dh1.data(), H, gw + f.off_d0, H, Epilogue::kNone, nullptr, 0, true));
     gemm(mm(m, E, H, ws.dh1.data(), H, 1, f.WT(f.off_d0), E, ws.denc.data(), E));
-    hashEncodeBackward(f.grid(), ws.pos.data() + 3 * s0, m, ws.denc.data(), g.table.data(), g.touched.data());
+    hashEncodeBackward(f.grid(), ws.pos.data() + 3 * s0, m, ws.denc.data(), g.table.data(), g.touched.data(), n - s0);
   }
 }
 
@@ -448,6 +448,7 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
     }
     for (size_t w = w0; w < w1; ++w) {
       uint64_t any = 0;
+      bool changed = false;
       for (size_t t = 0; t < T; ++t) any |= tb[t][w];
       while (any) {
         const int b = __builtin_ctzll(any);
@@ -463,11 +464,16 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
         }
         // tiny-cuda-nn skips entries whose summed gradient is exactly zero.
         if (gsum[0] == 0.f && gsum[1] == 0.f) continue;
+        changed = true;
         adamEntry<2>(&f.table[2 * e], &f.table_m[2 * e], &f.table_v[2 * e], gsum, &f.table_steps[e], lr, f.cfg.adam,
                      f.bias);
-        if (half) f.table_half[e] = packHalfEntry(&f.table[2 * e]);
       }
       for (size_t t = 0; t < T; ++t) tb[t][w] = 0;
+      // Refresh the fp16 copy of the word's 64 entries at once (untouched ones repack unchanged).
+      if (half && changed) {
+        const size_t e0 = w * 64, ne = std::min<size_t>(64, f.n_entries - e0);
+        packHalfTable(&f.table[2 * e0], ne, &f.table_half[e0]);
+      }
     }
   };
   const size_t workers = size_t(std::max(1, n_threads));

@@ -137,7 +137,7 @@ HWY_INLINE void PrefetchChunk(const HashGridView& grid, const void* base, size_t
   }
 }
 
-void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
+void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld, size_t n_prefetch) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
   const hn::RebindToSigned<decltype(df)> di;
@@ -161,7 +161,7 @@ void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float*
   };
   PrefetchChunk(grid, src, entry_bytes, pos, 0, n);
   for (; s + N <= n; s += N) {
-    PrefetchChunk(grid, src, entry_bytes, pos, s + N, n);
+    PrefetchChunk(grid, src, entry_bytes, pos, s + N, n_prefetch);
     LoadPositions(pos, s, N, xs, ys, zs);
     const auto px = hn::Load(df, xs), py = hn::Load(df, ys), pz = hn::Load(df, zs);
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -196,7 +196,7 @@ void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float*
 }
 
 void HashEncodeBackwardImpl(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* grad_table,
-                            uint64_t* touched) {
+                            uint64_t* touched, size_t n_prefetch) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
   const size_t N = hn::Lanes(df);
@@ -207,7 +207,7 @@ void HashEncodeBackwardImpl(const HashGridView& grid, const float* pos, size_t n
   size_t s = 0;
   PrefetchChunk(grid, grad_table, 8, pos, 0, n);
   for (; s + N <= n; s += N) {
-    PrefetchChunk(grid, grad_table, 8, pos, s + N, n);
+    PrefetchChunk(grid, grad_table, 8, pos, s + N, n_prefetch);
     LoadPositions(pos, s, N, xs, ys, zs);
     const auto px = hn::Load(df, xs), py = hn::Load(df, ys), pz = hn::Load(df, zs);
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -240,6 +240,41 @@ void HashEncodeBackwardImpl(const HashGridView& grid, const float* pos, size_t n
   }
 }
 
+// packHalfTable: halfFromFloat (hash_grid.h) without branches, 2 vectors of features (Lanes
+// entries) at a time; bit-identical to the scalar conversion.
+void PackHalfImpl(const float* HWY_RESTRICT table, size_t n_entries, uint32_t* HWY_RESTRICT out) {
+  size_t e = 0;
+#if HWY_TARGET != HWY_SCALAR
+  const hn::ScalableTag<float> df;
+  const hn::RebindToUnsigned<decltype(df)> du;
+  const hn::RebindToSigned<decltype(df)> di;
+  const size_t N = hn::Lanes(df);
+  const auto kAbs = hn::Set(du, 0x7fffffffu), kSign = hn::Set(du, 0x8000u), kOne = hn::Set(du, 1u),
+             kRebias = hn::Set(du, 0xC8000FFFu), kSubBias = hn::Set(du, 0x3f000000u), kNan = hn::Set(du, 0x7e00u),
+             kInf = hn::Set(du, 0x7c00u);
+  const auto kInfBits = hn::Set(di, 0x7f800000), kOvf = hn::Set(di, 0x47800000 - 1), kSub = hn::Set(di, 0x38800000);
+  const auto kHalf = hn::Set(df, 0.5f);
+  auto convert = [&](hn::Vec<decltype(df)> v) {
+    const auto x = hn::BitCast(du, v);
+    const auto sign = hn::And(hn::ShiftRight<16>(x), kSign);
+    const auto a = hn::And(x, kAbs);
+    const auto ai = hn::BitCast(di, a);
+    const auto normal = hn::ShiftRight<13>(hn::Add(hn::Add(a, kRebias), hn::And(hn::ShiftRight<13>(a), kOne)));
+    const auto sub = hn::Sub(hn::BitCast(du, hn::Add(hn::BitCast(df, a), kHalf)), kSubBias);
+    const auto ovf = hn::IfThenElse(hn::RebindMask(du, hn::Gt(ai, kInfBits)), kNan, kInf);
+    const auto r = hn::IfThenElse(hn::RebindMask(du, hn::Gt(ai, kOvf)), ovf,
+                                  hn::IfThenElse(hn::RebindMask(du, hn::Lt(ai, kSub)), sub, normal));
+    return hn::Or(r, sign);
+  };
+  for (; e + N <= n_entries; e += N) {
+    const auto lo = convert(hn::LoadU(df, table + 2 * e)), hi = convert(hn::LoadU(df, table + 2 * e + N));
+    // Even lanes are feature 0, odd lanes feature 1 of consecutive entries.
+    hn::StoreU(hn::Or(hn::ConcatEven(du, hi, lo), hn::ShiftLeft<16>(hn::ConcatOdd(du, hi, lo))), du, out + e);
+  }
+#endif
+  for (; e < n_entries; ++e) out[e] = packHalfEntry(table + 2 * e);
+}
+
 // NOLINTNEXTLINE(google-readability-namespace-comments)
 }  // namespace nerfslam::nerf::HWY_NAMESPACE
 HWY_AFTER_NAMESPACE();
@@ -249,6 +284,7 @@ namespace nerfslam::nerf {
 
 HWY_EXPORT(HashEncodeImpl);
 HWY_EXPORT(HashEncodeBackwardImpl);
+HWY_EXPORT(PackHalfImpl);
 
 std::vector<GridLevel> gridLevels(int n_levels, int base_resolution, double finest_resolution, int log2_hashmap_size) {
   std::vector<GridLevel> levels(size_t(std::max(n_levels, 0)));
@@ -272,7 +308,7 @@ std::vector<GridLevel> gridLevels(int n_levels, int base_resolution, double fine
 }
 
 void packHalfTable(const float* table, size_t n_entries, uint32_t* out) {
-  for (size_t e = 0; e < n_entries; ++e) out[e] = packHalfEntry(table + 2 * e);
+  HWY_DYNAMIC_DISPATCH(PackHalfImpl)(table, n_entries, out);
 }
 
 void hashEncodeScalar(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
@@ -337,13 +373,13 @@ void hashEncodePositionGradient(const HashGridView& grid, const float* pos, size
   }
 }
 
-void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
-  HWY_DYNAMIC_DISPATCH(HashEncodeImpl)(grid, pos, n, enc, ld);
+void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld, size_t n_prefetch) {
+  HWY_DYNAMIC_DISPATCH(HashEncodeImpl)(grid, pos, n, enc, ld, std::max(n, n_prefetch));
 }
 
 void hashEncodeBackward(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* grad_table,
-                        uint64_t* touched) {
-  HWY_DYNAMIC_DISPATCH(HashEncodeBackwardImpl)(grid, pos, n, d_enc, grad_table, touched);
+                        uint64_t* touched, size_t n_prefetch) {
+  HWY_DYNAMIC_DISPATCH(HashEncodeBackwardImpl)(grid, pos, n, d_enc, grad_table, touched, std::max(n, n_prefetch));
 }
 
 }  // namespace nerfslam::nerf

@@ -2,6 +2,7 @@
 // every compiled target, and the backward pass against finite differences.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <vector>
@@ -161,6 +162,19 @@ TEST(HashGrid, SimdMatchesScalarOnEveryTarget) {
     hashEncodeBackward(g.view(), pos.data(), n, d_enc.data(), grad.data(), touched.data());
     EXPECT_EQ(touched, tref);
     for (size_t i = 0; i < grad.size(); ++i) ASSERT_NEAR(grad[i], gref[i], tol) << i;
+    // Tiled as the field calls them (64-sample tiles), with look-ahead prefetching into the next tile: the same
+    // results (prefetching never changes values).
+    std::vector<float> enc_t(g.features() * n, -9.f), grad_t(g.table.size(), 0.f);
+    std::vector<uint64_t> touched_t(tref.size(), 0);
+    for (size_t s0 = 0; s0 < n; s0 += 64) {  // a multiple of every lane count: same SIMD/tail split
+      const size_t m = std::min<size_t>(64, n - s0);
+      hashEncode(g.view(), pos.data() + 3 * s0, m, enc_t.data() + s0, n, n - s0);
+      hashEncodeBackward(g.view(), pos.data() + 3 * s0, m, d_enc.data() + s0 * g.features(), grad_t.data(),
+                         touched_t.data(), n - s0);
+    }
+    EXPECT_EQ(enc_t, enc);
+    EXPECT_EQ(grad_t, grad);
+    EXPECT_EQ(touched_t, tref);
   });
   EXPECT_GE(targets, 1);
 }
@@ -277,7 +291,9 @@ TEST(HashGrid, HalfConversionsAreExactAndRoundToNearestEven) {
       if ((nb & 0x7fffu) >= 0x7c00u || ((nb ^ r) & 0x8000u)) continue;
       const double en = std::abs(halfReference(uint16_t(nb)) - double(x));
       ASSERT_LE(err, en) << x;
-      if (err == en) ASSERT_EQ(r & 1u, 0u) << "tie not to even: " << x;
+      if (err == en) {
+        ASSERT_EQ(r & 1u, 0u) << "tie not to even: " << x;
+      }
     }
   }
   EXPECT_EQ(halfFromFloat(65519.f), 0x7bffu);
@@ -285,6 +301,38 @@ TEST(HashGrid, HalfConversionsAreExactAndRoundToNearestEven) {
   EXPECT_EQ(halfFromFloat(-1e30f), 0xfc00u);
   EXPECT_EQ(halfFromFloat(std::ldexp(1.f, -25)), 0u);  // tie between 0 and the smallest subnormal
   EXPECT_EQ(halfFromFloat(std::ldexp(1.5f, -25)), 1u);
+}
+
+TEST(HashGrid, PackHalfTableMatchesScalarConversionOnEveryTarget) {
+  // Every half value, values just around them, random magnitudes and the specials; an odd count
+  // of entries exercises the tail.
+  std::vector<float> v;
+  for (uint32_t h = 0; h < 65536; ++h) {
+    const float f = floatFromHalf(uint16_t(h));
+    v.push_back(f);
+    v.push_back(std::nextafter(f, 0.f));
+    v.push_back(std::nextafter(f, HUGE_VALF));
+  }
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> ue(-30.0, 20.0);
+  for (int i = 0; i < 100001; ++i) v.push_back(float(std::exp2(ue(rng))) * (i % 3 ? 1.f : -1.f));
+  for (float x : {0.f, -0.f, HUGE_VALF, -HUGE_VALF, std::nanf(""), 65504.f, 65519.99f, 65520.f, 1e-8f, 3e-8f})
+    v.push_back(x);
+  if (v.size() % 2) v.push_back(1.f);
+  const size_t entries = v.size() / 2 - 1;  // odd-sized tail on most lane counts
+  std::vector<uint32_t> ref(entries);
+  for (size_t e = 0; e < entries; ++e) ref[e] = packHalfEntry(&v[2 * e]);
+  int targets = 0;
+  forEachSimdTarget([&](const std::string& name) {
+    SCOPED_TRACE(name);
+    ++targets;
+    std::vector<uint32_t> out(entries + 1, 0xdeadbeefu);
+    packHalfTable(v.data(), entries, out.data());
+    EXPECT_EQ(out[entries], 0xdeadbeefu);  // no write past the end
+    out.pop_back();
+    EXPECT_EQ(out, ref);
+  });
+  EXPECT_GE(targets, 1);
 }
 
 TEST(HashGrid, HalfTableEncodesLikeTheRoundedFp32TableOnEveryTarget) {

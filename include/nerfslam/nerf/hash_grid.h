@@ -139,14 +139,17 @@ inline float gridFeature(const HashGridView& grid, size_t e, int f) {
 }
 
 // Forward encoding (dispatched to the best SIMD target) and its scalar reference.
-void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld);
+// n_prefetch (>= n, or 0 for n): positions readable at pos; the kernels prefetch the table lines of
+// the samples after the current ones, so a caller working in tiles passes what remains of its
+// batch and the first samples of the next tile are not fetched cold.
+void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld, size_t n_prefetch = 0);
 void hashEncodeScalar(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld);
 
 // Backward: grad_table[2*e + f] += sum over samples and corners of w * d_enc; d_enc is
 // sample-major [s][2*L] here (what the MLP backward produces). `touched` is a bitmap over entries
 // (bit e set when entry e received a gradient). Dispatched and scalar reference.
 void hashEncodeBackward(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* grad_table,
-                        uint64_t* touched);
+                        uint64_t* touched, size_t n_prefetch = 0);
 void hashEncodeBackwardScalar(const HashGridView& grid, const float* pos, size_t n, const float* d_enc,
                               float* grad_table, uint64_t* touched);
 

@@ -1,0 +1,220 @@
+// `nerfslam train`: trains a NeRF on a transforms.json dataset (NeRF-synthetic / instant-ngp layout),
+// holding out every Nth view for testing. Writes model.nerf, report.json, psnr_curve.csv and
+// side-by-side test renders (render | ground truth) into --out, all atomically.
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <sstream>
+#include <string>
+
+#include <spdlog/spdlog.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "command.h"
+#include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/eval/image_metrics.h"
+#include "nerfslam/io/dataset.h"
+#include "nerfslam/nerf/renderer.h"
+#include "nerfslam/nerf/trainer.h"
+
+namespace nerfslam::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+struct TrainArgs {
+  std::string transforms;
+  std::string out;
+  double seconds = 0;
+  int64_t steps = 0;
+  int test_every = 8;
+  double downscale = 1.0;
+  int threads = 2;
+  int64_t seed = 0;
+  double eval_interval = 10.0;
+  int curve_views = 3;
+  int samples_per_step = 1 << 16;
+};
+
+double peakRssMb() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // kB
+  return 0.0;
+}
+
+struct Split {
+  std::vector<nerf::TrainingView> train, test;
+  std::vector<std::string> test_names;
+};
+
+Split loadSplit(const TrainArgs& a, double* aabb_scale) {
+  const std::string spec = "transforms:" + a.transforms;
+  auto ds = openDataset(spec);
+  *aabb_scale = ds->aabbScale().value_or(1.0);
+  Split s;
+  for (size_t i = 0; i < ds->size(); ++i) {
+    const DatasetFrame f = ds->load(i, ImageMode::kUnchanged);
+    if (!f.T_world_cam) throw fieldError(a.transforms, fmt::format("frames[{}].transform_matrix", i), "missing");
+    if (f.image.depth() != CV_8U)
+      throw fieldError(f.path, "image", "only 8-bit images are supported for NeRF training");
+    auto v = nerf::makeTrainingView(f.image, ds->camera(), *f.T_world_cam, a.downscale, f.path);
+    if (a.test_every > 0 && i % size_t(a.test_every) == 0) {
+      s.test.push_back(std::move(v));
+      s.test_names.push_back(fs::path(f.path).stem().string());
+    } else {
+      s.train.push_back(std::move(v));
+    }
+  }
+  if (s.train.empty()) fail("{}: no training views left after holding out every {}th", a.transforms, a.test_every);
+  return s;
+}
+
+struct Eval {
+  double psnr = 0, ssim = 0;
+};
+
+Eval evaluate(const nerf::NerfModel& model, const std::vector<nerf::TrainingView>& views, size_t count, int threads,
+              bool with_ssim, std::vector<cv::Mat>* renders) {
+  Eval e;
+  count = std::min(count, views.size());
+  if (count == 0) return e;
+  const float white[3] = {1, 1, 1};
+  nerf::RenderOptions ro;
+  ro.threads = threads;
+  ro.normals = false;
+  for (size_t i = 0; i < count; ++i) {
+    const auto r = nerf::renderView(model, views[i].camera, views[i].T_world_cam, ro);
+    cv::Mat gt = nerf::compositeOver(views[i], white);
+    cv::Mat pred = cv::min(cv::max(r.rgb, 0.0), 1.0);
+    e.psnr += eval::psnr(pred, gt, 1.0);
+    if (with_ssim) e.ssim += eval::ssim(pred, gt, 1.0);
+    if (renders) {
+      cv::Mat side;
+      cv::hconcat(nerf::toBgr8(pred), nerf::toBgr8(gt), side);
+      renders->push_back(side);
+    }
+  }
+  e.psnr /= double(count);
+  e.ssim /= double(count);
+  return e;
+}
+
+int runTrain(const TrainArgs& a) {
+  if (a.seconds <= 0 && a.steps <= 0) fail("train: give --seconds or --steps");
+  const fs::path out(a.out);
+  ensureDirectory(out);
+  double aabb_scale = 1.0;
+  const Split split = loadSplit(a, &aabb_scale);
+  spdlog::info("train: {} training and {} test views of {}x{}, aabb_scale {}", split.train.size(), split.test.size(),
+               split.train[0].camera.width, split.train[0].camera.height, aabb_scale);
+
+  nerf::SceneTransform scene;
+  scene.aabb_scale = aabb_scale;
+  nerf::NerfModel model = nerf::NerfModel::create(nerf::FieldConfig{}, scene, uint64_t(a.seed));
+  nerf::TrainOptions to;
+  to.threads = a.threads;
+  to.seed = a.seed;
+  to.samples_per_step = a.samples_per_step;
+  nerf::Trainer trainer(model, split.train, to);
+
+  std::ostringstream curve;
+  curve << "seconds,steps,test_psnr\n";
+  double train_seconds = 0, next_eval = a.eval_interval;
+  int64_t samples = 0;
+  double last_loss = 0;
+  while (true) {
+    if (a.steps > 0 && trainer.steps() >= a.steps) break;
+    if (a.seconds > 0 && train_seconds >= a.seconds) break;
+    const auto t0 = Clock::now();
+    const auto st = trainer.step();
+    train_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
+    samples += st.samples;
+    last_loss = st.loss;
+    if (trainer.steps() % 20 == 0)
+      spdlog::debug(
+          "step {}: loss {:.5f}, {} rays, {} samples; march {:.3f} fwd {:.3f} comp {:.3f} bwd {:.3f} adam {:.3f} "
+          "grid {:.3f} s; grid {:.1f}% occupied",
+          trainer.steps(), st.loss, st.rays, st.samples, st.times.march, st.times.field_forward, st.times.composite,
+          st.times.field_backward, st.times.optimizer, st.times.grid_update, 100.0 * model.grid->occupiedFraction());
+    if (a.eval_interval > 0 && train_seconds >= next_eval && !split.test.empty()) {
+      const Eval e = evaluate(model, split.test, size_t(a.curve_views), a.threads, false, nullptr);
+      curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), e.psnr);
+      spdlog::info("train: {:.1f} s, step {}, loss {:.5f}, test PSNR (first {} views) {:.2f} dB, grid {:.1f}% occupied",
+                   train_seconds, trainer.steps(), st.loss, a.curve_views, e.psnr,
+                   100.0 * model.grid->occupiedFraction());
+      next_eval += a.eval_interval;
+    }
+  }
+  std::vector<cv::Mat> renders;
+  const Eval final_eval = evaluate(model, split.test, split.test.size(), a.threads, true, &renders);
+  if (!split.test.empty()) curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), final_eval.psnr);
+
+  nerf::saveModel(model, out / "model.nerf");
+  for (size_t i = 0; i < renders.size(); ++i) {
+    AtomicOutput o(out / fmt::format("test_{:03d}_{}.png", i, split.test_names[i]));
+    if (!cv::imwrite(o.tempPath().string(), renders[i])) fail("{}: cannot write image", o.path().string());
+    o.commit();
+  }
+  writeStringAtomic(out / "psnr_curve.csv", curve.str());
+  const auto& tt = trainer.totalTimes();
+  nlohmann::json rep;
+  rep["transforms"] = a.transforms;
+  rep["downscale"] = a.downscale;
+  rep["threads"] = a.threads;
+  rep["seed"] = a.seed;
+  rep["train_views"] = split.train.size();
+  rep["test_views"] = split.test.size();
+  rep["psnr_test_mean"] = final_eval.psnr;
+  rep["ssim_test_mean"] = final_eval.ssim;
+  rep["steps"] = trainer.steps();
+  rep["train_seconds"] = train_seconds;
+  rep["samples_per_second"] = train_seconds > 0 ? double(samples) / train_seconds : 0.0;
+  rep["samples_per_step"] = to.samples_per_step;
+  rep["final_loss"] = last_loss;
+  rep["rollbacks"] = trainer.rollbacks();
+  rep["occupied_fraction"] = model.grid->occupiedFraction();
+  rep["stage_seconds"] = {{"march", tt.march},         {"field_forward", tt.field_forward},
+                          {"composite", tt.composite}, {"field_backward", tt.field_backward},
+                          {"optimizer", tt.optimizer}, {"grid_update", tt.grid_update}};
+  rep["peak_rss_mb"] = peakRssMb();
+  writeStringAtomic(out / "report.json", rep.dump(2) + "\n");
+  spdlog::info("train: {} steps in {:.1f} s ({:.2f} M samples/s), test PSNR {:.2f} dB, SSIM {:.4f}, peak RSS {:.0f} MB",
+               trainer.steps(), train_seconds, double(samples) / std::max(train_seconds, 1e-9) / 1e6, final_eval.psnr,
+               final_eval.ssim, peakRssMb());
+  std::printf("psnr_test_mean %.3f ssim_test_mean %.4f steps %lld train_seconds %.2f\n", final_eval.psnr,
+              final_eval.ssim, static_cast<long long>(trainer.steps()), train_seconds);
+  return 0;
+}
+
+Registrar reg(
+    "train", "Train a NeRF on a transforms.json dataset (every Nth view held out for testing)",
+    [](CLI::App& sub) -> Runner {
+      auto a = std::make_shared<TrainArgs>();
+      sub.add_option("--transforms", a->transforms, "transforms.json (or its folder)")->required();
+      sub.add_option("--out", a->out, "Output directory")->required();
+      auto* secs = sub.add_option("--seconds", a->seconds, "Training time budget (s, evaluation excluded)")
+                       ->check(CLI::PositiveNumber);
+      auto* steps = sub.add_option("--steps", a->steps, "Number of optimiser steps")->check(CLI::PositiveNumber);
+      secs->excludes(steps);
+      sub.add_option("--test-every", a->test_every, "Hold out every Nth view (0: none)")->check(CLI::Range(0, 1000000));
+      sub.add_option("--downscale", a->downscale, "Image downscale factor (>= 1)")->check(CLI::Range(1.0, 64.0));
+      sub.add_option("--threads", a->threads, "Threads")->check(CLI::Range(1, 256));
+      sub.add_option("--seed", a->seed, "Random seed")->check(CLI::NonNegativeNumber);
+      sub.add_option("--eval-interval", a->eval_interval,
+                     "Seconds of training between PSNR-curve evaluations (0: none)")
+          ->check(CLI::NonNegativeNumber);
+      sub.add_option("--curve-views", a->curve_views, "Test views evaluated for the PSNR curve")
+          ->check(CLI::Range(1, 1000));
+      sub.add_option("--samples-per-step", a->samples_per_step, "Ray samples per optimiser step")
+          ->check(CLI::Range(256, 1 << 22));
+      return [a]() -> int { return runTrain(*a); };
+    });
+
+}  // namespace
+}  // namespace nerfslam::cli

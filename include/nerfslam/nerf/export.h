@@ -1,0 +1,52 @@
+#pragma once
+// Geometry export from a NeRF model, in world coordinates.
+//
+// - densityPointCloud: points on a regular grid (occupancy-cell resolution x `subdivision`) inside the
+//   occupied cells of the occupancy grid whose density exceeds `density_threshold`, coloured by the
+//   field's colour averaged over the six axis-aligned viewing directions.
+// - depthPointCloud: back-projected depth renders of given views (e.g. the training views), coloured
+//   by the rendered colour; pixels with opacity below min_opacity are skipped.
+// - extractMesh: an isosurface of the density at `density_threshold` by marching tetrahedra (each grid
+//   cube split into six tetrahedra around its main diagonal; no ambiguous cases, watertight) on a
+//   grid of 128 * subdivision cells over cascade 0, evaluated only near occupied cells. Triangles face
+//   outwards (towards decreasing density); vertex colours are the field's colour seen along -normal.
+// The density threshold is in the field's units (1 / NeRF-space length); instant-ngp's default
+// mesh threshold is 2.5 in the same units.
+#include <filesystem>
+#include <vector>
+
+#include <pcl/PolygonMesh.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/pose.h"
+#include "nerfslam/nerf/model_io.h"
+
+namespace nerfslam::nerf {
+
+struct ExportOptions {
+  double density_threshold = 2.5;
+  int subdivision = 2;  // grid cells per occupancy cell along each axis
+  int threads = 2;
+  double min_opacity = 0.9;  // depthPointCloud
+  int pixel_stride = 2;      // depthPointCloud: every n-th pixel in x and y
+};
+
+pcl::PointCloud<pcl::PointXYZRGB> densityPointCloud(const NerfModel& model, const ExportOptions& options = {});
+
+struct PosedCamera {
+  Camera camera;
+  SE3 T_world_cam;
+};
+pcl::PointCloud<pcl::PointXYZRGB> depthPointCloud(const NerfModel& model, const std::vector<PosedCamera>& views,
+                                                  const ExportOptions& options = {});
+
+pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& options = {});
+
+// Atomic writers (PCL into a temporary file, then rename). The format follows the extension for
+// clouds: .ply (binary PLY) or .pcd (binary PCD); meshes are written as binary PLY.
+void savePointCloud(const pcl::PointCloud<pcl::PointXYZRGB>& cloud, const std::filesystem::path& path);
+void saveMesh(const pcl::PolygonMesh& mesh, const std::filesystem::path& path);
+
+}  // namespace nerfslam::nerf

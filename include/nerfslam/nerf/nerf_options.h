@@ -1,0 +1,99 @@
+#pragma once
+// Options of the NeRF pipeline around the radiance field: scene normalisation, occupancy grid,
+// training schedule, rendering. Defaults follow instant-ngp where a CPU does not force a change
+// (each such change is documented at the field).
+#include <cstdint>
+
+#include "nerfslam/core/options.h"
+#include "nerfslam/nerf/field.h"
+
+namespace nerfslam::nerf {
+
+struct SceneOptions {
+  // instant-ngp's NeRF-synthetic defaults: p_nerf = 0.33 * p_world + 0.5, so the lego (inside
+  // [-1.5, 1.5]^3) fills the unit cube.
+  double scale = 0.33;
+  std::vector<double> offset = {0.5, 0.5, 0.5};
+  // 0: take it from the dataset (transforms.json "aabb_scale", 1 when absent).
+  double aabb_scale = 0.0;
+
+  template <class V>
+  void visit(V& v) {
+    v("scale", scale, "World-to-NeRF-space scale (p_nerf = scale * p_world + offset)", check::positive<double>());
+    v("offset", offset, "World-to-NeRF-space offset (3 numbers)");
+    v("aabb_scale", aabb_scale, "Scene box side in units of the unit cube (power of two); 0: from the dataset",
+      check::range(0.0, 128.0));
+  }
+};
+
+struct TrainOptions {
+  // Samples per optimiser step. instant-ngp uses 2^18 on a GPU; on 2 CPU cores 2^16 keeps a step at
+  // ~50-70 ms (>= 15 steps/s) and each thread's sample buffers (positions, directions, field
+  // activations: ~2.5 KB per sample) inside L3. Rays per step adapt so the sample count stays constant.
+  int samples_per_step = 1 << 16;
+  int max_samples_per_ray = 1024;
+  // Adam learning rate: lr * lr_decay_factor^k, k = number of lr_decay_interval boundaries passed
+  // after lr_decay_start (instant-ngp's paper schedule is x0.33 at 20k steps and every 10k after).
+  double lr = 1e-2;
+  int lr_decay_start = 20000;
+  int lr_decay_interval = 10000;
+  double lr_decay_factor = 0.33;
+  double huber_delta = 0.1;
+  // Occupancy grid: updated every grid_update_interval steps. The first update samples every cell;
+  // later updates during the first grid_warmup_steps sample a quarter of the cells uniformly
+  // (instant-ngp samples every cell during its warm-up: 2M density queries per update is several
+  // seconds on 2 cores, too much of a 60 s budget); afterwards grid_update_fraction of the cells
+  // uniformly plus as many among the occupied ones. instant-ngp samples 1/4 + 1/4 at 2^18 samples per step; 1/16 + 1/16
+  // keeps the same ratio of grid queries to training samples at 2^16 samples per step.
+  int grid_update_interval = 16;
+  int grid_warmup_steps = 256;
+  double grid_update_fraction = 1.0 / 16.0;
+  double grid_decay = 0.95;
+  double grid_threshold = 0.01;
+  // Random background colour per ray (targets composited with the same colour).
+  bool random_background = true;
+  // Divergence guard: parameters are snapshotted every snapshot_interval steps; a non-finite loss
+  // restores the snapshot (and restarts Adam's moments).
+  int snapshot_interval = 100;
+  int threads = 2;
+  int64_t seed = 0;
+
+  template <class V>
+  void visit(V& v) {
+    v("samples_per_step", samples_per_step, "Target ray samples per optimiser step", check::range(256, 1 << 22));
+    v("max_samples_per_ray", max_samples_per_ray, "March samples per ray at most", check::range(16, 4096));
+    v("lr", lr, "Adam learning rate", check::positive<double>());
+    v("lr_decay_start", lr_decay_start, "Step of the first learning-rate decay", check::nonNegative<int>());
+    v("lr_decay_interval", lr_decay_interval, "Steps between decays", check::positive<int>());
+    v("lr_decay_factor", lr_decay_factor, "Learning-rate factor per decay", check::range(0.0, 1.0));
+    v("huber_delta", huber_delta, "Huber loss delta", check::positive<double>());
+    v("grid_update_interval", grid_update_interval, "Steps between occupancy updates", check::positive<int>());
+    v("grid_warmup_steps", grid_warmup_steps, "Steps during which every cell is updated", check::nonNegative<int>());
+    v("grid_update_fraction", grid_update_fraction, "Fraction of cells sampled per update after warm-up",
+      check::range(0.0, 1.0));
+    v("grid_decay", grid_decay, "Occupancy decay per update", check::range(0.0, 1.0));
+    v("grid_threshold", grid_threshold, "Occupancy threshold cap (density * sqrt(3)/1024)", check::positive<double>());
+    v("random_background", random_background, "Random background colour per training ray");
+    v("snapshot_interval", snapshot_interval, "Steps between divergence snapshots", check::positive<int>());
+    v("threads", threads, "Training threads", check::range(1, 256));
+    v("seed", seed, "Random seed", check::nonNegative<int64_t>());
+  }
+};
+
+struct RenderOptions {
+  int threads = 2;
+  std::vector<double> background = {1.0, 1.0, 1.0};  // RGB in [0,1]
+  bool normals = true;
+  // Depth/normals are reported where the accumulated opacity reaches this (0 elsewhere).
+  double min_opacity = 0.5;
+
+  template <class V>
+  void visit(V& v) {
+    v("threads", threads, "Rendering threads", check::range(1, 256));
+    v("background", background, "Background RGB in [0,1]");
+    v("normals", normals, "Render normals (costs density gradients)");
+    v("min_opacity", min_opacity, "Opacity below which depth and normals are left 0", check::range(0.0, 1.0));
+  }
+};
+
+}  // namespace nerfslam::nerf

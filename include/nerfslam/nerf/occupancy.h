@@ -1,0 +1,81 @@
+#pragma once
+// instant-ngp's multi-scale occupancy grid for empty-space skipping.
+//
+// `cascades` nested grids of 128^3 cells; cascade m covers the cube of side 2^m centred at
+// (0.5, 0.5, 0.5) in NeRF space (cascade 0 is the unit cube, the last one the scene AABB). Each cell
+// keeps a decaying maximum of sampled "opacity units": density * kMinStep, i.e. the optical
+// thickness of one minimal march step (instant-ngp's units). An update evaluates the density at one
+// random point in each selected cell, sets value = max(value * decay, new) for every cell (cells not
+// sampled in this update just decay), then marks cells occupied when value > min(threshold_cap,
+// mean value of cascade 0). Coarser cascades are OR-ed with their finer children where they overlap,
+// so a coarse lookup never hides a finely occupied cell.
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace nerfslam::nerf {
+
+// Smallest march step: sqrt(3)/1024 (1024 steps across the unit cube's diagonal).
+constexpr float kMinStep = 1.7320508f / 1024.f;
+
+class OccupancyGrid {
+ public:
+  static constexpr int kRes = 128;
+  static constexpr int kCells = kRes * kRes * kRes;
+
+  // Densities (sigma, in 1/NeRF-length units) for n NeRF-space points xyz[3n]. May run threads inside.
+  using DensityFn = std::function<void(const float* xyz, int n, float* sigma)>;
+
+  explicit OccupancyGrid(int cascades = 1);
+
+  int cascades() const { return cascades_; }
+  // Cascades for an aabb_scale (power of two): log2(aabb_scale) + 1.
+  static int cascadesForAabbScale(double aabb_scale);
+
+  struct UpdateParams {
+    int64_t uniform_cells = -1;  // cells sampled uniformly at random (with repeats); -1: every cell once
+    int64_t occupied_cells = 0;  // extra samples among the currently occupied cells
+    float decay = 0.95f;
+    float threshold_cap = 0.01f;  // threshold = min(threshold_cap, mean value of cascade 0)
+    uint64_t seed = 0;            // the sample positions are a pure function of this seed
+  };
+  void update(const DensityFn& density, const UpdateParams& params);
+
+  // Cell containing NeRF-space point p at cascade `mip` (false outside that cascade's cube).
+  bool occupied(const Eigen::Vector3f& p, int mip) const;
+  bool occupiedCell(int mip, int x, int y, int z) const {
+    const uint32_t i = cellIndex(x, y, z);
+    return (bits_[size_t(mip) * kCells / 64 + i / 64] >> (i % 64)) & 1u;
+  }
+  // Smallest cascade whose cube contains p (clamped to the last).
+  int mipFromPos(const Eigen::Vector3f& p) const;
+  // As instant-ngp: also coarse enough that a step of dt is not much smaller than a cell.
+  int mipFromDt(float dt, const Eigen::Vector3f& p) const;
+
+  // Sets every value to `value` and marks every cell occupied regardless of it (start of training:
+  // everything is a candidate until the first update).
+  void fill(float value);
+  // Sets the cell values directly (tests, loading) and rebuilds the occupancy bits with `threshold`.
+  void setValues(std::vector<float> values, float threshold);
+  const std::vector<float>& values() const { return values_; }  // cascades * kCells, index mip*kCells + cell
+  float threshold() const { return threshold_; }
+  double occupiedFraction() const;
+  // Centre of a cell in NeRF space and the side length of cells in cascade mip.
+  Eigen::Vector3f cellCenter(int mip, int x, int y, int z) const;
+  static float cellSize(int mip) { return std::ldexp(1.f, mip) / kRes; }
+
+  static uint32_t cellIndex(int x, int y, int z) { return uint32_t(x) + kRes * (uint32_t(y) + kRes * uint32_t(z)); }
+
+ private:
+  void rebuildBits();
+
+  int cascades_;
+  float threshold_ = 0;
+  std::vector<float> values_;
+  std::vector<uint64_t> bits_;  // cascades * kCells bits
+};
+
+}  // namespace nerfslam::nerf

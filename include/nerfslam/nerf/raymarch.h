@@ -1,0 +1,48 @@
+#pragma once
+// Ray marching through the occupancy grid (instant-ngp's scheme).
+//
+// Steps start at the ray's entry into the scene AABB plus a random fraction of one step. The step is
+// dt(t) = clamp(t * cone_angle, kMinStep, max_step): constant sqrt(3)/1024 when cone_angle = 0 (used
+// for aabb_scale 1), growing exponentially with distance otherwise (cone_angle 1/256 for larger
+// scenes). At each step the occupancy cell (at the cascade picked from position and step size) is
+// tested: occupied -> emit a sample at t with length dt; empty -> jump to the first step position at
+// or past the next cell boundary along the ray (DDA skip). Jumps are whole steps, so samples always
+// land on the same step lattice as an unskipped march: skipping never drops an occupied cell's
+// sample. With cone_angle = 0, t_k = t_0 + k * dt exactly (no accumulated rounding).
+#include "nerfslam/nerf/occupancy.h"
+#include "nerfslam/nerf/rays.h"
+
+namespace nerfslam::nerf {
+
+struct MarchParams {
+  float cone_angle = 0.f;     // 0 for aabb_scale 1, 1/256 otherwise
+  float max_step = kMinStep;  // sqrt(3) * 2^(cascades-1) / 1024
+  static MarchParams forScene(double aabb_scale, int cascades);
+  float dt(float t) const { return std::clamp(t * cone_angle, kMinStep, max_step); }
+};
+
+// Resumable march of one ray: next() emits up to `max` samples and can be called again (rendering
+// marches in growing chunks and stops when the ray terminates).
+class RayMarcher {
+ public:
+  // `jitter` in [0,1): fraction of the first step to offset the start by.
+  RayMarcher(const Ray& ray, const OccupancyGrid& grid, const SceneTransform& scene, const MarchParams& params,
+             float jitter);
+  bool done() const { return done_; }
+  // Writes positions xyz[3*k], t[k] (parameter at the sample), dt[k]; returns the count.
+  int next(int max, float* xyz, float* t, float* dt);
+  float tFar() const { return t_far_; }
+
+ private:
+  float distanceToNextCell(const Eigen::Vector3f& p, int mip) const;
+
+  Ray ray_;
+  Eigen::Vector3f inv_dir_;
+  const OccupancyGrid* grid_;
+  MarchParams params_;
+  float t0_ = 0, t_ = 0, t_far_ = 0;
+  int64_t k_ = 0;  // step index (cone_angle 0)
+  bool done_ = false;
+};
+
+}  // namespace nerfslam::nerf

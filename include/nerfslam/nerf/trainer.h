@@ -1,0 +1,104 @@
+#pragma once
+// NeRF training (instant-ngp recipe on CPU threads).
+//
+// One step: each of T threads draws rays (random view, random pixel, jittered inside the pixel) from
+// its own RNG stream (seeded from the seed and the thread index) until its share of
+// samples_per_step is filled, marches them through the occupancy grid, runs the field forward on all
+// its samples at once, composites each ray against a random background colour, and back-propagates
+// the Huber loss into its own Gradients; field.step() then merges the threads' gradients in thread
+// order and applies Adam. Results are deterministic for a seed and a thread count.
+// The occupancy grid is refreshed every grid_update_interval steps (see TrainOptions).
+// A non-finite loss, or non-finite MLP weights after an update (checked every step; the hash grid is
+// checked before each snapshot, so a snapshot is never broken), rolls the parameters and the grid
+// back to the last snapshot (taken every snapshot_interval steps) and restarts Adam's moments; the
+// step is reported as a rollback.
+#include <cstdint>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/pose.h"
+#include "nerfslam/nerf/model_io.h"
+#include "nerfslam/nerf/nerf_options.h"
+
+namespace nerfslam::nerf {
+
+// A posed image. image: RGB or RGBA channel order (not OpenCV's BGR), CV_8UC3/4 (0..255) or
+// CV_32FC3/4 (0..1). With alpha, the target colour is composited over the ray's background.
+struct TrainingView {
+  cv::Mat image;
+  Camera camera;
+  SE3 T_world_cam;
+};
+
+// Validates a view (image type, size vs camera, finite pose, positive focal length) and throws an
+// Error naming `source` otherwise.
+void validateView(const TrainingView& view, const std::string& source);
+
+// A view from an image as OpenCV decodes it (8-bit BGR or BGRA, e.g. DatasetFrame::image with
+// ImageMode::kUnchanged), resized by 1/downscale (area averaging on premultiplied alpha, so edges do
+// not pick up the colour of transparent pixels) with the camera scaled to match.
+TrainingView makeTrainingView(const cv::Mat& bgr_or_bgra, const Camera& camera, const SE3& T_world_cam,
+                              double downscale = 1.0, const std::string& source = "image");
+// The view's image as float RGB composited over `background` (what a render is compared with).
+cv::Mat compositeOver(const TrainingView& view, const float background[3]);
+
+struct StageTimes {
+  double march = 0, field_forward = 0, composite = 0, field_backward = 0, optimizer = 0, grid_update = 0;
+};
+
+struct StepStats {
+  double loss = 0;  // mean Huber loss per ray (sum over channels)
+  int64_t rays = 0;
+  int64_t samples = 0;
+  bool rolled_back = false;
+  StageTimes times;  // seconds of wall time for this step, per stage
+};
+
+class Trainer {
+ public:
+  Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options);
+  ~Trainer();
+
+  StepStats step();
+  int64_t steps() const { return step_; }
+  int64_t rollbacks() const { return rollbacks_; }
+  double learningRate() const;
+  const StageTimes& totalTimes() const { return total_; }
+  // Takes a snapshot now (the trainer also does every snapshot_interval steps).
+  void snapshot();
+  // Forces one occupancy-grid update now (with warm-up semantics when still in warm-up).
+  void updateGrid();
+
+ private:
+  struct ThreadState;
+  struct ImageData {
+    std::vector<uint8_t> rgba;  // 8-bit RGBA, row-major
+    int width, height;
+    bool has_alpha;
+  };
+  void rollback();
+  void densityBatch(const float* xyz, int n, float* sigma);
+
+  NerfModel& model_;
+  std::vector<TrainingView> views_;
+  std::vector<ImageData> images_;
+  TrainOptions opt_;
+  std::vector<std::unique_ptr<ThreadState>> threads_;
+  int64_t step_ = 0;
+  int64_t rollbacks_ = 0;
+  StageTimes total_;
+  // Divergence snapshot.
+  std::vector<std::vector<float>> snap_params_;
+  std::vector<float> snap_grid_;
+  float snap_threshold_ = 0;
+  int64_t snap_step_ = -1;
+};
+
+// Runs fn(thread_index) on n threads (the calling thread runs index 0) and waits.
+void parallelRun(int n, const std::function<void(int)>& fn);
+
+}  // namespace nerfslam::nerf

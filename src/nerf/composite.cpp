@@ -1,0 +1,87 @@
+#include "nerfslam/nerf/composite.h"
+
+#include <cmath>
+
+namespace nerfslam::nerf {
+
+CompositeResult compositeForward(int n, const float* sigma, const float* rgb, const float* dt, const float* t,
+                                 const float background[3], float min_transmittance) {
+  CompositeResult r;
+  float T = 1.f;
+  float acc[3] = {0, 0, 0};
+  float dsum = 0, d2sum = 0;
+  int i = 0;
+  for (; i < n; ++i) {
+    if (T < min_transmittance) break;
+    const float alpha = 1.f - std::exp(-sigma[i] * dt[i]);
+    const float w = T * alpha;
+    acc[0] += w * rgb[3 * i + 0];
+    acc[1] += w * rgb[3 * i + 1];
+    acc[2] += w * rgb[3 * i + 2];
+    dsum += w * t[i];
+    d2sum += w * t[i] * t[i];
+    T *= 1.f - alpha;
+  }
+  r.used = i;
+  r.opacity = 1.f - T;
+  for (int c = 0; c < 3; ++c) r.rgb[c] = acc[c] + T * background[c];
+  r.depth_sum = dsum;
+  if (r.opacity > 1e-6f) {
+    r.depth = dsum / r.opacity;
+    r.depth_var = std::max(0.f, d2sum / r.opacity - r.depth * r.depth);
+  }
+  return r;
+}
+
+void compositeBackward(int n, const float* sigma, const float* rgb, const float* dt, const float* t,
+                       const float background[3], const CompositeResult& fwd, const float d_color[3], float d_depth_sum,
+                       float* d_sigma, float* d_rgb) {
+  // Suffix S_{>i} = sum_{k>i} w_k c_k + T_end * bg is the final colour minus the prefix sum up to i.
+  // dC/dsigma_i = dt_i (T_{i+1} c_i - S_{>i});  dC/dc_i = w_i. Same for depth with t_i, bg 0.
+  const float T_end = 1.f - fwd.opacity;
+  float T = 1.f;
+  float prefix[3] = {0, 0, 0};
+  float prefix_d = 0;
+  const int used = fwd.used;
+  for (int i = 0; i < used; ++i) {
+    const float alpha = 1.f - std::exp(-sigma[i] * dt[i]);
+    const float w = T * alpha;
+    const float T_next = T * (1.f - alpha);
+    float g = 0;
+    for (int c = 0; c < 3; ++c) {
+      const float ci = rgb[3 * i + c];
+      prefix[c] += w * ci;
+      const float suffix = fwd.rgb[c] - prefix[c];  // includes T_end * bg
+      g += d_color[c] * (T_next * ci - suffix);
+      d_rgb[3 * i + c] = d_color[c] * w;
+    }
+    prefix_d += w * t[i];
+    g += d_depth_sum * (T_next * t[i] - (fwd.depth_sum - prefix_d));
+    d_sigma[i] = g * dt[i];
+    T = T_next;
+  }
+  (void)T_end;
+  (void)background;
+  for (int i = used; i < n; ++i) {
+    d_sigma[i] = 0;
+    d_rgb[3 * i + 0] = d_rgb[3 * i + 1] = d_rgb[3 * i + 2] = 0;
+  }
+}
+
+float huberLoss3(const float pred[3], const float target[3], float delta, float d_pred[3]) {
+  float loss = 0;
+  for (int c = 0; c < 3; ++c) {
+    const float d = pred[c] - target[c];
+    const float a = std::fabs(d);
+    if (a <= delta) {
+      loss += 0.5f * d * d / delta;
+      d_pred[c] = d / delta;
+    } else {
+      loss += a - 0.5f * delta;
+      d_pred[c] = d > 0 ? 1.f : -1.f;
+    }
+  }
+  return loss;
+}
+
+}  // namespace nerfslam::nerf

@@ -1,0 +1,281 @@
+#include "nerfslam/nerf/model_io.h"
+
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
+#include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/error.h"
+
+namespace nerfslam::nerf {
+namespace {
+
+constexpr char kMagic[8] = {'N', 'E', 'R', 'F', 'S', 'L', 'A', 'M'};
+constexpr uint32_t kByteOrderMark = 0x01020304u;
+
+const std::array<uint32_t, 256>& crcTable() {
+  static const std::array<uint32_t, 256> table = [] {
+    std::array<uint32_t, 256> t{};
+    for (uint32_t i = 0; i < 256; ++i) {
+      uint32_t c = i;
+      for (int k = 0; k < 8; ++k) c = (c & 1) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
+      t[i] = c;
+    }
+    return t;
+  }();
+  return table;
+}
+
+// Visitors over option structs (FieldConfig, AdamOptions) to and from JSON.
+struct ToJson {
+  nlohmann::json& j;
+  template <class T, class C>
+  void operator()(const char* name, T& value, const char*, const C&) {
+    j[name] = value;
+  }
+  template <class T>
+  void operator()(const char* name, T& value, const char*) {
+    if constexpr (std::is_arithmetic_v<T> || std::is_same_v<T, std::string>) {
+      j[name] = value;
+    } else {
+      nlohmann::json sub = nlohmann::json::object();
+      ToJson w{sub};
+      value.visit(w);
+      j[name] = sub;
+    }
+  }
+};
+
+struct FromJson {
+  const nlohmann::json& j;
+  std::string file;
+  template <class T, class C>
+  void operator()(const char* name, T& value, const char* doc, const C&) {
+    (*this)(name, value, doc);
+  }
+  template <class T>
+  void operator()(const char* name, T& value, const char*) {
+    if (!j.contains(name)) throw fieldError(file, std::string("header.") + name, "missing");
+    if constexpr (std::is_arithmetic_v<T> || std::is_same_v<T, std::string>) {
+      value = j.at(name).get<T>();
+    } else {
+      FromJson r{j.at(name), file};
+      value.visit(r);
+    }
+  }
+};
+
+class CrcWriter {
+ public:
+  explicit CrcWriter(std::ostream& os) : os_(os) {}
+  void write(const void* data, size_t n) {
+    // Large arrays in chunks so the stream and the CRC work on cache-sized pieces.
+    const char* p = static_cast<const char*>(data);
+    while (n > 0) {
+      const size_t k = std::min<size_t>(n, 1 << 20);
+      os_.write(p, std::streamsize(k));
+      crc_ = crc32(p, k, crc_);
+      p += k;
+      n -= k;
+    }
+  }
+  template <class T>
+  void pod(const T& v) {
+    write(&v, sizeof(T));
+  }
+  uint32_t crc() const { return crc_; }
+
+ private:
+  std::ostream& os_;
+  uint32_t crc_ = 0;
+};
+
+struct ArrayRef {
+  std::string name;
+  std::string type;  // "f32" or "u32"
+  void* data;
+  size_t count;
+};
+
+std::vector<ArrayRef> collectArrays(NerfModel& m, bool optimizer) {
+  std::vector<ArrayRef> arrays;
+  for (auto& a : m.field->parameters()) arrays.push_back({a.name, "f32", a.data, a.size});
+  if (optimizer) {
+    for (auto& a : m.field->optimizerMoments()) arrays.push_back({a.name, "f32", a.data, a.size});
+    for (auto& a : m.field->optimizerCounters()) arrays.push_back({a.name, "u32", a.data, a.size});
+  }
+  return arrays;
+}
+
+}  // namespace
+
+uint32_t crc32(const void* data, size_t n, uint32_t crc) {
+  const auto& t = crcTable();
+  const auto* p = static_cast<const uint8_t*>(data);
+  crc = ~crc;
+  for (size_t i = 0; i < n; ++i) crc = t[(crc ^ p[i]) & 0xFFu] ^ (crc >> 8);
+  return ~crc;
+}
+
+NerfModel NerfModel::create(FieldConfig config, const SceneTransform& scene, uint64_t seed) {
+  scene.validate("scene");
+  if (config.finest_resolution == FieldConfig().finest_resolution) config.finest_resolution = 2048.0 * scene.aabb_scale;
+  NerfModel m;
+  m.field_config = config;
+  m.scene = scene;
+  m.field = std::make_unique<RadianceField>(config, seed);
+  m.grid = std::make_unique<OccupancyGrid>(OccupancyGrid::cascadesForAabbScale(scene.aabb_scale));
+  m.grid->fill(0.f);  // values 0 (the first update sets them) but every cell marked occupied
+  return m;
+}
+
+void NerfModel::toFieldCoords(const float* p, size_t n, float* q) const {
+  const float s = fieldCoordScale();
+  const float lo = float(0.5 - 0.5 * scene.aabb_scale);
+  for (size_t i = 0; i < 3 * n; ++i) q[i] = (p[i] - lo) * s;
+}
+
+void saveModel(NerfModel& model, const std::filesystem::path& path, const SaveOptions& options) {
+  if (!model.field || !model.grid) fail("{}: cannot save an empty model", path.string());
+  const auto arrays = collectArrays(model, options.include_optimizer);
+  for (const auto& a : arrays) {
+    if (a.type != "f32") continue;
+    const float* f = static_cast<const float*>(a.data);
+    for (size_t i = 0; i < a.count; ++i)
+      if (!std::isfinite(f[i]))
+        fail("{}: refusing to save a diverged model: parameter array '{}' has a non-finite value at {}", path.string(),
+             a.name, i);
+  }
+  nlohmann::json h;
+  nlohmann::json fc = nlohmann::json::object();
+  ToJson w{fc};
+  model.field_config.visit(w);
+  h["field_config"] = fc;
+  h["scene"] = {{"scale", model.scene.scale},
+                {"offset", {model.scene.offset.x(), model.scene.offset.y(), model.scene.offset.z()}},
+                {"aabb_scale", model.scene.aabb_scale}};
+  h["grid"] = {{"cascades", model.grid->cascades()},
+               {"resolution", OccupancyGrid::kRes},
+               {"threshold", model.grid->threshold()}};
+  h["training_steps"] = model.training_steps;
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& a : arrays) list.push_back({{"name", a.name}, {"type", a.type}, {"count", a.count}});
+  list.push_back({{"name", "occupancy.values"}, {"type", "f32"}, {"count", model.grid->values().size()}});
+  h["arrays"] = list;
+  const std::string header = h.dump();
+
+  writeFileAtomic(path, [&](std::ostream& os) {
+    CrcWriter cw(os);
+    cw.write(kMagic, sizeof(kMagic));
+    cw.pod(kModelFormatVersion);
+    cw.pod(kByteOrderMark);
+    cw.pod(uint64_t(header.size()));
+    cw.write(header.data(), header.size());
+    for (const auto& a : arrays) cw.write(a.data, a.count * 4);
+    cw.write(model.grid->values().data(), model.grid->values().size() * 4);
+    const uint32_t crc = cw.crc();
+    os.write(reinterpret_cast<const char*>(&crc), 4);
+  });
+}
+
+NerfModel loadModel(const std::filesystem::path& path) {
+  const std::string file = path.string();
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail("{}: cannot open model file", file);
+  in.seekg(0, std::ios::end);
+  const auto size = size_t(in.tellg());
+  in.seekg(0);
+  constexpr size_t kFixed = 8 + 4 + 4 + 8;
+  if (size < kFixed + 4) fail("{}: not a nerfslam model (file too short: {} bytes)", file, size);
+  std::vector<char> buf(size);
+  if (!in.read(buf.data(), std::streamsize(size))) fail("{}: read error", file);
+  if (std::memcmp(buf.data(), kMagic, 8) != 0)
+    fail("{}: not a nerfslam model (bad magic; expected \"NERFSLAM\")", file);
+  uint32_t version, bom;
+  uint64_t hlen;
+  std::memcpy(&version, buf.data() + 8, 4);
+  std::memcpy(&bom, buf.data() + 12, 4);
+  std::memcpy(&hlen, buf.data() + 16, 8);
+  if (bom != kByteOrderMark) fail("{}: byte order mark mismatch (file written on a big-endian machine?)", file);
+  if (version != kModelFormatVersion)
+    fail("{}: unsupported model format version {} (this build reads version {})", file, version, kModelFormatVersion);
+  if (hlen > size - kFixed - 4) fail("{}: truncated model file (header of {} bytes, file {} bytes)", file, hlen, size);
+  nlohmann::json h;
+  try {
+    h = nlohmann::json::parse(buf.begin() + long(kFixed), buf.begin() + long(kFixed + hlen));
+  } catch (const std::exception& e) {
+    fail("{}: corrupt model header: {}", file, e.what());
+  }
+  // Expected total size from the header, to tell truncation apart from corruption.
+  size_t data_bytes = 0;
+  try {
+    for (const auto& a : h.at("arrays")) data_bytes += a.at("count").get<size_t>() * 4;
+  } catch (const std::exception& e) {
+    fail("{}: corrupt model header: {}", file, e.what());
+  }
+  const size_t expected = kFixed + hlen + data_bytes + 4;
+  if (size < expected) fail("{}: truncated model file ({} bytes, expected {})", file, size, expected);
+  if (size > expected) fail("{}: corrupt model file ({} trailing bytes)", file, size - expected);
+  uint32_t stored;
+  std::memcpy(&stored, buf.data() + size - 4, 4);
+  if (crc32(buf.data(), size - 4) != stored) fail("{}: checksum mismatch: the model file is corrupted", file);
+
+  NerfModel m;
+  try {
+    FromJson r{h.at("field_config"), file};
+    m.field_config.visit(r);
+    const auto& s = h.at("scene");
+    m.scene.scale = s.at("scale").get<double>();
+    const auto off = s.at("offset").get<std::vector<double>>();
+    if (off.size() != 3) throw fieldError(file, "scene.offset", "must have 3 numbers");
+    m.scene.offset = Eigen::Vector3d(off[0], off[1], off[2]);
+    m.scene.aabb_scale = s.at("aabb_scale").get<double>();
+    m.scene.validate(file);
+    const int cascades = h.at("grid").at("cascades").get<int>();
+    if (h.at("grid").at("resolution").get<int>() != OccupancyGrid::kRes)
+      throw fieldError(file, "grid.resolution", "unsupported occupancy grid resolution");
+    m.training_steps = h.at("training_steps").get<uint64_t>();
+    m.field = std::make_unique<RadianceField>(m.field_config, 0);
+    m.grid = std::make_unique<OccupancyGrid>(cascades);
+    const float threshold = h.at("grid").at("threshold").get<float>();
+
+    std::vector<ArrayRef> targets = collectArrays(m, true);
+    size_t pos = kFixed + hlen;
+    std::vector<float> grid_values;
+    for (const auto& a : h.at("arrays")) {
+      const auto name = a.at("name").get<std::string>();
+      const auto type = a.at("type").get<std::string>();
+      const auto count = a.at("count").get<size_t>();
+      const char* src = buf.data() + pos;
+      pos += count * 4;
+      if (name == "occupancy.values") {
+        if (count != size_t(cascades) * OccupancyGrid::kCells)
+          throw fieldError(file, "arrays.occupancy.values", "size does not match the grid");
+        grid_values.resize(count);
+        std::memcpy(grid_values.data(), src, count * 4);
+        continue;
+      }
+      auto it = std::find_if(targets.begin(), targets.end(), [&](const ArrayRef& t) { return t.name == name; });
+      if (it == targets.end()) throw fieldError(file, "arrays." + name, "unknown parameter array");
+      if (it->count != count || it->type != type)
+        throw fieldError(file, "arrays." + name,
+                         fmt::format("has {} {} values, the field expects {} {}", count, type, it->count, it->type));
+      std::memcpy(it->data, src, count * 4);
+    }
+    if (grid_values.empty()) throw fieldError(file, "arrays", "no occupancy grid");
+    for (const auto& t : collectArrays(m, false))
+      if (std::none_of(h.at("arrays").begin(), h.at("arrays").end(),
+                       [&](const nlohmann::json& a) { return a.at("name").get<std::string>() == t.name; }))
+        throw fieldError(file, "arrays." + t.name, "missing");
+    m.field->parametersChanged();
+    m.grid->setValues(std::move(grid_values), threshold);
+  } catch (const nlohmann::json::exception& e) {
+    fail("{}: corrupt model header: {}", file, e.what());
+  }
+  return m;
+}
+
+}  // namespace nerfslam::nerf

@@ -1,0 +1,151 @@
+#include "nerfslam/nerf/occupancy.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "nerfslam/core/error.h"
+
+namespace nerfslam::nerf {
+
+OccupancyGrid::OccupancyGrid(int cascades) : cascades_(cascades) {
+  if (cascades < 1 || cascades > 8) fail("occupancy grid: cascades must be in [1, 8], got {}", cascades);
+  values_.assign(size_t(cascades) * kCells, 0.f);
+  bits_.assign(size_t(cascades) * kCells / 64, ~uint64_t(0));
+}
+
+int OccupancyGrid::cascadesForAabbScale(double aabb_scale) {
+  return 1 + std::max(0, int(std::lround(std::log2(std::max(1.0, aabb_scale)))));
+}
+
+int OccupancyGrid::mipFromPos(const Eigen::Vector3f& p) const {
+  const float maxval = (p.array() - 0.5f).abs().maxCoeff();
+  int exponent;
+  std::frexp(maxval, &exponent);  // maxval = f * 2^exponent, f in [0.5, 1)
+  return std::clamp(exponent + 1, 0, cascades_ - 1);
+}
+
+int OccupancyGrid::mipFromDt(float dt, const Eigen::Vector3f& p) const {
+  int exponent;
+  std::frexp(dt * kRes, &exponent);
+  return std::clamp(std::max(exponent, mipFromPos(p)), 0, cascades_ - 1);
+}
+
+bool OccupancyGrid::occupied(const Eigen::Vector3f& p, int mip) const {
+  const float inv = std::ldexp(1.f, -mip);
+  int c[3];
+  for (int a = 0; a < 3; ++a) {
+    const float u = ((p[a] - 0.5f) * inv + 0.5f) * kRes;
+    if (!(u >= 0.f && u < float(kRes))) return false;
+    c[a] = int(u);
+  }
+  return occupiedCell(mip, c[0], c[1], c[2]);
+}
+
+Eigen::Vector3f OccupancyGrid::cellCenter(int mip, int x, int y, int z) const {
+  const float s = std::ldexp(1.f, mip);
+  return Eigen::Vector3f(((x + 0.5f) / kRes - 0.5f) * s + 0.5f, ((y + 0.5f) / kRes - 0.5f) * s + 0.5f,
+                         ((z + 0.5f) / kRes - 0.5f) * s + 0.5f);
+}
+
+void OccupancyGrid::fill(float value) {
+  std::fill(values_.begin(), values_.end(), value);
+  threshold_ = 0;
+  std::fill(bits_.begin(), bits_.end(), ~uint64_t(0));
+}
+
+void OccupancyGrid::setValues(std::vector<float> values, float threshold) {
+  if (values.size() != values_.size())
+    fail("occupancy grid: {} values given, {} expected", values.size(), values_.size());
+  values_ = std::move(values);
+  threshold_ = threshold;
+  rebuildBits();
+}
+
+double OccupancyGrid::occupiedFraction() const {
+  size_t n = 0;
+  for (uint64_t w : bits_) n += size_t(__builtin_popcountll(w));
+  return double(n) / double(values_.size());
+}
+
+void OccupancyGrid::rebuildBits() {
+  std::fill(bits_.begin(), bits_.end(), 0);
+  for (size_t i = 0; i < values_.size(); ++i)
+    if (values_[i] > threshold_) bits_[i / 64] |= uint64_t(1) << (i % 64);
+  // Max-pool finer cascades into the overlapping centre of the next coarser one.
+  constexpr int h = kRes / 2;
+  for (int m = 1; m < cascades_; ++m) {
+    for (int z = 0; z < kRes; ++z)
+      for (int y = 0; y < kRes; ++y)
+        for (int x = 0; x < kRes; ++x) {
+          if (!occupiedCell(m - 1, x, y, z)) continue;
+          const size_t j = size_t(m) * kCells + cellIndex(h / 2 + x / 2, h / 2 + y / 2, h / 2 + z / 2);
+          bits_[j / 64] |= uint64_t(1) << (j % 64);
+        }
+  }
+}
+
+void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
+  const size_t total = values_.size();
+  std::mt19937_64 rng(prm.seed);
+  std::uniform_real_distribution<float> u01(0.f, 1.f);
+
+  // Cells to sample this round.
+  std::vector<uint32_t> cells;  // global index mip*kCells + cell
+  if (prm.uniform_cells < 0) {
+    cells.resize(total);
+    for (size_t i = 0; i < total; ++i) cells[i] = uint32_t(i);
+  } else {
+    std::uniform_int_distribution<uint32_t> pick(0, uint32_t(total - 1));
+    cells.reserve(size_t(prm.uniform_cells + prm.occupied_cells));
+    for (int64_t i = 0; i < prm.uniform_cells; ++i) cells.push_back(pick(rng));
+  }
+  if (prm.occupied_cells > 0) {
+    std::vector<uint32_t> occ;
+    for (size_t w = 0; w < bits_.size(); ++w) {
+      uint64_t b = bits_[w];
+      while (b) {
+        const int k = __builtin_ctzll(b);
+        occ.push_back(uint32_t(w * 64 + size_t(k)));
+        b &= b - 1;
+      }
+    }
+    if (!occ.empty()) {
+      std::uniform_int_distribution<size_t> pick(0, occ.size() - 1);
+      for (int64_t i = 0; i < prm.occupied_cells; ++i) cells.push_back(occ[pick(rng)]);
+    }
+  }
+
+  std::vector<float> fresh(total, 0.f);
+  constexpr size_t kChunk = 1 << 16;
+  std::vector<float> xyz(3 * kChunk), sigma(kChunk);
+  for (size_t begin = 0; begin < cells.size(); begin += kChunk) {
+    const size_t n = std::min(kChunk, cells.size() - begin);
+    for (size_t k = 0; k < n; ++k) {
+      const uint32_t g = cells[begin + k];
+      const int mip = int(g / kCells);
+      const uint32_t c = g % kCells;
+      const int x = int(c % kRes), y = int((c / kRes) % kRes), z = int(c / (kRes * kRes));
+      const float s = std::ldexp(1.f, mip);
+      xyz[3 * k + 0] = ((x + u01(rng)) / kRes - 0.5f) * s + 0.5f;
+      xyz[3 * k + 1] = ((y + u01(rng)) / kRes - 0.5f) * s + 0.5f;
+      xyz[3 * k + 2] = ((z + u01(rng)) / kRes - 0.5f) * s + 0.5f;
+    }
+    density(xyz.data(), int(n), sigma.data());
+    for (size_t k = 0; k < n; ++k) {
+      float v = sigma[k] * kMinStep;
+      if (!std::isfinite(v)) v = 0.f;  // a diverged field must not poison the grid
+      float& f = fresh[cells[begin + k]];
+      f = std::max(f, v);
+    }
+  }
+  double sum = 0;
+  for (size_t i = 0; i < total; ++i) {
+    values_[i] = std::max(values_[i] * prm.decay, fresh[i]);
+    if (i < size_t(kCells)) sum += values_[i];
+  }
+  threshold_ = std::min(prm.threshold_cap, float(sum / kCells));
+  rebuildBits();
+}
+
+}  // namespace nerfslam::nerf

@@ -1,0 +1,161 @@
+#include "nerfslam/nerf/renderer.h"
+
+#include <atomic>
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/nerf/composite.h"
+#include "nerfslam/nerf/raymarch.h"
+#include "nerfslam/nerf/trainer.h"
+
+namespace nerfslam::nerf {
+namespace {
+
+constexpr int kTile = 512;
+constexpr float kNormalWeight = 1e-3f;  // samples below this weight do not contribute to normals
+
+struct RayState {
+  int pixel;
+  float T = 1.f, rgb[3] = {0, 0, 0}, dsum = 0, d2sum = 0, n[3] = {0, 0, 0};
+  bool alive = true;
+};
+
+}  // namespace
+
+cv::Mat toBgr8(const cv::Mat& rgb) {
+  cv::Mat bgr, out;
+  cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+  bgr.convertTo(out, CV_8U, 255.0);
+  return out;
+}
+
+RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3& T_world_cam,
+                        const RenderOptions& opt) {
+  camera.validate("render camera");
+  if (!T_world_cam.matrix().allFinite()) fail("render: the pose is not finite");
+  if (opt.background.size() != 3) fail("render: background must have 3 values");
+  const int W = camera.width, H = camera.height;
+  RenderResult res;
+  res.rgb = cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0));
+  res.depth = cv::Mat(H, W, CV_32FC1, cv::Scalar(0));
+  res.normals = cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0));
+  res.uncertainty = cv::Mat(H, W, CV_32FC1, cv::Scalar(0));
+  res.opacity = cv::Mat(H, W, CV_32FC1, cv::Scalar(0));
+
+  const RayGenerator gen(camera, T_world_cam, model.scene);
+  const MarchParams march = MarchParams::forScene(model.scene.aabb_scale, model.grid->cascades());
+  const Eigen::Vector3f z_axis = T_world_cam.rotationMatrix().col(2).cast<float>();
+  const float inv_scale = float(1.0 / model.scene.scale);
+  const float bg[3] = {float(opt.background[0]), float(opt.background[1]), float(opt.background[2])};
+  const int n_pixels = W * H;
+  const int n_tiles = (n_pixels + kTile - 1) / kTile;
+  std::atomic<int> next_tile{0};
+  std::atomic<int64_t> total_samples{0};
+
+  parallelRun(opt.threads, [&](int) {
+    std::vector<RayMarcher> marchers;
+    std::vector<Ray> rays;
+    std::vector<RayState> st;
+    std::vector<float> pos, fpos, dir, t, dt, sigma, rgb, grad;
+    std::vector<int> owner;         // ray of each batch sample
+    std::vector<int> g_idx, g_ray;  // samples whose normals are needed
+    std::vector<float> g_w, g_pos;
+    int64_t samples = 0;
+    for (int tile = next_tile++; tile < n_tiles; tile = next_tile++) {
+      const int p0 = tile * kTile, p1 = std::min(n_pixels, p0 + kTile);
+      marchers.clear();
+      rays.clear();
+      st.clear();
+      for (int p = p0; p < p1; ++p) {
+        const Ray r = gen.ray(p % W, p / W);
+        rays.push_back(r);
+        marchers.emplace_back(r, *model.grid, model.scene, march, 0.5f);
+        RayState s;
+        s.pixel = p;
+        s.alive = !marchers.back().done();
+        st.push_back(s);
+      }
+      for (int round = 0;; ++round) {
+        const int chunk = round == 0 ? 8 : round == 1 ? 16 : 32;
+        const size_t cap = st.size() * size_t(chunk);
+        for (auto* v : {&pos, &dir, &fpos, &rgb}) v->resize(3 * cap);
+        for (auto* v : {&t, &dt, &sigma}) v->resize(cap);
+        owner.clear();
+        int used = 0;
+        for (size_t i = 0; i < st.size(); ++i) {
+          if (!st[i].alive) continue;
+          const int n = marchers[i].next(chunk, pos.data() + 3 * used, t.data() + used, dt.data() + used);
+          for (int k = 0; k < n; ++k) {
+            owner.push_back(int(i));
+            std::copy(rays[i].dir.data(), rays[i].dir.data() + 3, dir.data() + 3 * (used + k));
+          }
+          used += n;
+          if (n == 0) st[i].alive = false;
+        }
+        if (used == 0) break;
+        samples += used;
+        model.toFieldCoords(pos.data(), size_t(used), fpos.data());
+        model.field->query(fpos.data(), dir.data(), size_t(used), sigma.data(), rgb.data());
+        g_idx.clear();
+        g_ray.clear();
+        g_w.clear();
+        for (int k = 0; k < used; ++k) {
+          RayState& s = st[size_t(owner[size_t(k)])];
+          if (s.T < kMinTransmittance) continue;
+          const float alpha = 1.f - std::exp(-sigma[size_t(k)] * dt[size_t(k)]);
+          const float w = s.T * alpha;
+          for (int c = 0; c < 3; ++c) s.rgb[c] += w * rgb[3 * size_t(k) + c];
+          s.dsum += w * t[size_t(k)];
+          s.d2sum += w * t[size_t(k)] * t[size_t(k)];
+          s.T *= 1.f - alpha;
+          if (opt.normals && w > kNormalWeight) {
+            g_idx.push_back(k);
+            g_ray.push_back(owner[size_t(k)]);
+            g_w.push_back(w);
+          }
+        }
+        if (!g_idx.empty()) {
+          g_pos.resize(3 * g_idx.size());
+          grad.resize(3 * g_idx.size());
+          for (size_t j = 0; j < g_idx.size(); ++j)
+            std::copy(fpos.data() + 3 * g_idx[j], fpos.data() + 3 * g_idx[j] + 3, g_pos.data() + 3 * j);
+          model.field->densityGradient(g_pos.data(), g_idx.size(), grad.data());
+          for (size_t j = 0; j < g_idx.size(); ++j) {
+            const float* g = grad.data() + 3 * j;
+            const float len = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+            if (!(len > 0.f) || !std::isfinite(len)) continue;
+            RayState& s = st[size_t(g_ray[j])];
+            for (int c = 0; c < 3; ++c) s.n[c] -= g_w[j] * g[c] / len;
+          }
+        }
+        for (size_t i = 0; i < st.size(); ++i)
+          if (st[i].alive && (st[i].T < kMinTransmittance || marchers[i].done())) st[i].alive = false;
+      }
+      for (size_t i = 0; i < st.size(); ++i) {
+        const RayState& s = st[i];
+        const int x = s.pixel % W, y = s.pixel / W;
+        const float op = 1.f - s.T;
+        auto& c = res.rgb.at<cv::Vec3f>(y, x);
+        for (int k = 0; k < 3; ++k) c[k] = s.rgb[k] + s.T * bg[k];
+        res.opacity.at<float>(y, x) = op;
+        if (op > 1e-6f) {
+          const float mean_t = s.dsum / op;
+          const float var = std::max(0.f, s.d2sum / op - mean_t * mean_t);
+          res.uncertainty.at<float>(y, x) = std::sqrt(var) * inv_scale;
+          if (op >= float(opt.min_opacity)) {
+            res.depth.at<float>(y, x) = mean_t * inv_scale * rays[i].dir.dot(z_axis);
+            const float len = std::sqrt(s.n[0] * s.n[0] + s.n[1] * s.n[1] + s.n[2] * s.n[2]);
+            if (len > 0.f) res.normals.at<cv::Vec3f>(y, x) = cv::Vec3f(s.n[0] / len, s.n[1] / len, s.n[2] / len);
+          }
+        }
+      }
+    }
+    total_samples += samples;
+  });
+  res.samples = total_samples;
+  return res;
+}
+
+}  // namespace nerfslam::nerf

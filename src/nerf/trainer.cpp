@@ -1,0 +1,395 @@
+#include "nerfslam/nerf/trainer.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <exception>
+#include <thread>
+
+#include <spdlog/spdlog.h>
+#include <opencv2/imgproc.hpp>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/nerf/composite.h"
+#include "nerfslam/nerf/raymarch.h"
+
+namespace nerfslam::nerf {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+}  // namespace
+
+void parallelRun(int n, const std::function<void(int)>& fn) {
+  if (n <= 1) {
+    fn(0);
+    return;
+  }
+  std::vector<std::exception_ptr> errors(static_cast<size_t>(n));
+  std::vector<std::thread> pool;
+  pool.reserve(size_t(n - 1));
+  for (int i = 1; i < n; ++i)
+    pool.emplace_back([&, i] {
+      try {
+        fn(i);
+      } catch (...) {
+        errors[size_t(i)] = std::current_exception();
+      }
+    });
+  try {
+    fn(0);
+  } catch (...) {
+    errors[0] = std::current_exception();
+  }
+  for (auto& t : pool) t.join();
+  for (auto& e : errors)
+    if (e) std::rethrow_exception(e);
+}
+
+void validateView(const TrainingView& view, const std::string& source) {
+  view.camera.validate(source);
+  const cv::Mat& im = view.image;
+  if (im.empty()) throw fieldError(source, "image", "is empty");
+  const int depth = im.depth(), ch = im.channels();
+  if (!((depth == CV_8U || depth == CV_32F) && (ch == 3 || ch == 4)))
+    throw fieldError(source, "image", "must be 8-bit or float RGB/RGBA");
+  if (im.cols != view.camera.width || im.rows != view.camera.height)
+    throw fieldError(
+        source, "image",
+        fmt::format("is {}x{} but the camera is {}x{}", im.cols, im.rows, view.camera.width, view.camera.height));
+  if (!view.T_world_cam.matrix().allFinite()) throw fieldError(source, "T_world_cam", "is not finite");
+}
+
+TrainingView makeTrainingView(const cv::Mat& image, const Camera& camera, const SE3& T_world_cam, double downscale,
+                              const std::string& source) {
+  if (image.empty()) throw fieldError(source, "image", "is empty");
+  if (image.depth() != CV_8U || (image.channels() != 3 && image.channels() != 4))
+    throw fieldError(source, "image", "must be 8-bit BGR or BGRA");
+  if (!(downscale >= 1.0) || !std::isfinite(downscale)) throw fieldError(source, "downscale", "must be >= 1");
+  if (image.cols != camera.width || image.rows != camera.height)
+    throw fieldError(
+        source, "image",
+        fmt::format("is {}x{} but the camera is {}x{}", image.cols, image.rows, camera.width, camera.height));
+  TrainingView v;
+  v.T_world_cam = T_world_cam;
+  cv::Mat rgb;
+  cv::cvtColor(image, rgb, image.channels() == 4 ? cv::COLOR_BGRA2RGBA : cv::COLOR_BGR2RGB);
+  if (downscale == 1.0) {
+    v.image = rgb;
+    v.camera = camera;
+  } else {
+    const int w = std::max(1, int(std::lround(camera.width / downscale)));
+    const int h = std::max(1, int(std::lround(camera.height / downscale)));
+    v.camera = camera.scaled(double(w) / camera.width);
+    v.camera.width = w;
+    v.camera.height = h;
+    cv::Mat f;
+    rgb.convertTo(f, CV_32F, 1.0 / 255.0);
+    if (f.channels() == 4) {
+      std::vector<cv::Mat> ch;
+      cv::split(f, ch);
+      for (int c = 0; c < 3; ++c) ch[size_t(c)] = ch[size_t(c)].mul(ch[3]);
+      cv::merge(ch, f);
+    }
+    cv::Mat small;
+    cv::resize(f, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+    if (small.channels() == 4) {
+      std::vector<cv::Mat> ch;
+      cv::split(small, ch);
+      cv::Mat inv;
+      cv::divide(1.0, cv::max(ch[3], 1e-6), inv);
+      for (int c = 0; c < 3; ++c) ch[size_t(c)] = cv::min(ch[size_t(c)].mul(inv), 1.0);
+      cv::merge(ch, small);
+    }
+    v.image = small;
+  }
+  validateView(v, source);
+  return v;
+}
+
+cv::Mat compositeOver(const TrainingView& view, const float bg[3]) {
+  cv::Mat f;
+  view.image.convertTo(f, CV_32F, view.image.depth() == CV_8U ? 1.0 / 255.0 : 1.0);
+  cv::Mat out(f.size(), CV_32FC3);
+  const int ch = f.channels();
+  for (int y = 0; y < f.rows; ++y) {
+    const float* s = f.ptr<float>(y);
+    auto* d = out.ptr<cv::Vec3f>(y);
+    for (int x = 0; x < f.cols; ++x) {
+      const float a = ch == 4 ? s[4 * x + 3] : 1.f;
+      for (int c = 0; c < 3; ++c) d[x][c] = s[ch * x + c] * a + bg[c] * (1.f - a);
+    }
+  }
+  return out;
+}
+
+struct Trainer::ThreadState {
+  std::mt19937_64 rng;
+  RadianceField::Workspace ws;
+  RadianceField::Gradients grads;
+  std::vector<float> pos, fpos, dir, t, dt, sigma, rgb, d_sigma, d_rgb;
+  struct RayInfo {
+    int offset, count;
+    float target[3], bg[3];
+  };
+  std::vector<RayInfo> rays;
+  double loss = 0;
+  StageTimes times;
+};
+
+Trainer::Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options)
+    : model_(model), views_(std::move(views)), opt_(options) {
+  if (views_.empty()) fail("NeRF training: no training views");
+  if (opt_.threads < 1) fail("NeRF training: threads must be >= 1");
+  images_.reserve(views_.size());
+  for (size_t i = 0; i < views_.size(); ++i) {
+    validateView(views_[i], fmt::format("training view {}", i));
+    const cv::Mat& im = views_[i].image;
+    ImageData d;
+    d.width = im.cols;
+    d.height = im.rows;
+    d.has_alpha = im.channels() == 4;
+    cv::Mat u8;
+    if (im.depth() == CV_32F)
+      im.convertTo(u8, CV_8U, 255.0);
+    else
+      u8 = im;
+    if (u8.channels() == 3) {
+      cv::Mat a(u8.size(), CV_8UC1, cv::Scalar(255));
+      cv::Mat out;
+      cv::merge(std::vector<cv::Mat>{u8, a}, out);
+      u8 = out;
+    }
+    d.rgba.resize(size_t(d.width) * d.height * 4);
+    for (int y = 0; y < d.height; ++y)
+      std::memcpy(d.rgba.data() + size_t(y) * d.width * 4, u8.ptr(y), size_t(d.width) * 4);
+    images_.push_back(std::move(d));
+    views_[i].image.release();  // keep only the compact copy
+  }
+  for (int i = 0; i < opt_.threads; ++i) {
+    auto ts = std::make_unique<ThreadState>();
+    std::seed_seq seq{uint64_t(opt_.seed), uint64_t(i), uint64_t(0x6e657266)};
+    ts->rng.seed(seq);
+    ts->ws = model_.field->makeWorkspace();
+    ts->grads = model_.field->makeGradients();
+    threads_.push_back(std::move(ts));
+  }
+  snapshot();
+}
+
+Trainer::~Trainer() = default;
+
+double Trainer::learningRate() const {
+  double lr = opt_.lr;
+  if (step_ >= opt_.lr_decay_start) {
+    const int64_t k = 1 + (step_ - opt_.lr_decay_start) / opt_.lr_decay_interval;
+    lr *= std::pow(opt_.lr_decay_factor, double(k));
+  }
+  return lr;
+}
+
+void Trainer::densityBatch(const float* xyz, int n, float* sigma) {
+  const int T = opt_.threads;
+  parallelRun(T, [&](int ti) {
+    const int begin = int(int64_t(n) * ti / T), end = int(int64_t(n) * (ti + 1) / T);
+    if (end <= begin) return;
+    std::vector<float> q(size_t(end - begin) * 3);
+    model_.toFieldCoords(xyz + 3 * size_t(begin), size_t(end - begin), q.data());
+    model_.field->queryDensity(q.data(), size_t(end - begin), sigma + begin);
+  });
+}
+
+void Trainer::updateGrid() {
+  OccupancyGrid::UpdateParams p;
+  const int64_t total = int64_t(model_.grid->cascades()) * OccupancyGrid::kCells;
+  if (step_ == 0) {
+    p.uniform_cells = -1;  // every cell once: the grid starts from a full, untested occupancy
+  } else if (step_ < opt_.grid_warmup_steps) {
+    p.uniform_cells = total / 4;  // instant-ngp's post-warm-up share, uniform only
+  } else {
+    p.uniform_cells = int64_t(double(total) * opt_.grid_update_fraction);
+    p.occupied_cells = p.uniform_cells;
+  }
+  p.decay = float(opt_.grid_decay);
+  p.threshold_cap = float(opt_.grid_threshold);
+  p.seed = uint64_t(opt_.seed) * 0x9E3779B97F4A7C15ull + uint64_t(step_);
+  model_.grid->update([this](const float* xyz, int n, float* sigma) { densityBatch(xyz, n, sigma); }, p);
+}
+
+void Trainer::snapshot() {
+  auto params = model_.field->parameters();
+  for (const auto& a : params)
+    for (size_t i = 0; i < a.size; ++i)
+      if (!std::isfinite(a.data[i])) {
+        spdlog::warn("NeRF training: parameters not finite at step {}; keeping the snapshot of step {}", step_,
+                     snap_step_);
+        return;
+      }
+  snap_params_.resize(params.size());
+  for (size_t i = 0; i < params.size(); ++i) snap_params_[i].assign(params[i].data, params[i].data + params[i].size);
+  snap_grid_ = model_.grid->values();
+  snap_threshold_ = model_.grid->threshold();
+  snap_step_ = step_;
+}
+
+void Trainer::rollback() {
+  auto params = model_.field->parameters();
+  for (size_t i = 0; i < params.size(); ++i)
+    std::memcpy(params[i].data, snap_params_[i].data(), params[i].size * sizeof(float));
+  for (auto& m : model_.field->optimizerMoments()) std::fill(m.data, m.data + m.size, 0.f);
+  for (auto& c : model_.field->optimizerCounters()) std::fill(c.data, c.data + c.size, 0u);
+  model_.field->parametersChanged();
+  model_.grid->setValues(snap_grid_, snap_threshold_);
+  ++rollbacks_;
+}
+
+StepStats Trainer::step() {
+  StepStats stats;
+  auto t_grid = Clock::now();
+  if (step_ % opt_.grid_update_interval == 0) {
+    updateGrid();
+    stats.times.grid_update = since(t_grid);
+  }
+  const int T = opt_.threads;
+  const MarchParams march = MarchParams::forScene(model_.scene.aabb_scale, model_.grid->cascades());
+  const int budget = std::max(1, opt_.samples_per_step / T);
+  const float delta = float(opt_.huber_delta);
+
+  // Phase A: sample rays, march, field forward, composite, loss gradient (unnormalised).
+  parallelRun(T, [&](int ti) {
+    ThreadState& ts = *threads_[size_t(ti)];
+    ts.times = StageTimes{};
+    ts.loss = 0;
+    ts.rays.clear();
+    const size_t cap = size_t(budget);
+    for (auto* v : {&ts.pos, &ts.dir, &ts.fpos, &ts.rgb, &ts.d_rgb}) v->resize(3 * cap);
+    for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
+    std::uniform_real_distribution<float> u01(0.f, 1.f);
+    std::uniform_int_distribution<size_t> pick_view(0, views_.size() - 1);
+    auto t0 = Clock::now();
+    int used = 0;
+    for (int attempts = 0; used < budget && attempts < budget; ++attempts) {
+      const size_t vi = pick_view(ts.rng);
+      const ImageData& im = images_[vi];
+      const int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
+      const int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
+      const float ju = u01(ts.rng) - 0.5f, jv = u01(ts.rng) - 0.5f, jt = u01(ts.rng);
+      float bg[3] = {1.f, 1.f, 1.f};
+      if (opt_.random_background)
+        for (float& b : bg) b = u01(ts.rng);
+      const RayGenerator gen(views_[vi].camera, views_[vi].T_world_cam, model_.scene);
+      const Ray ray = gen.ray(px + ju, py + jv);
+      RayMarcher marcher(ray, *model_.grid, model_.scene, march, jt);
+      const int room = std::min(opt_.max_samples_per_ray, budget - used);
+      const int n = marcher.next(room, ts.pos.data() + 3 * used, ts.t.data() + used, ts.dt.data() + used);
+      if (n == 0) continue;
+      if (!marcher.done() && n == room && room < opt_.max_samples_per_ray) break;  // would be truncated
+      ThreadState::RayInfo ri;
+      ri.offset = used;
+      ri.count = n;
+      const uint8_t* px_rgba = im.rgba.data() + (size_t(py) * im.width + px) * 4;
+      const float a = px_rgba[3] / 255.f;
+      for (int c = 0; c < 3; ++c) {
+        ri.bg[c] = bg[c];
+        ri.target[c] = px_rgba[c] / 255.f * a + bg[c] * (1.f - a);
+      }
+      for (int k = 0; k < n; ++k) {
+        float* d = ts.dir.data() + 3 * (used + k);
+        d[0] = ray.dir.x();
+        d[1] = ray.dir.y();
+        d[2] = ray.dir.z();
+      }
+      ts.rays.push_back(ri);
+      used += n;
+    }
+    ts.times.march = since(t0);
+    t0 = Clock::now();
+    model_.toFieldCoords(ts.pos.data(), size_t(used), ts.fpos.data());
+    if (used > 0)
+      model_.field->forward(ts.ws, ts.fpos.data(), ts.dir.data(), size_t(used), ts.sigma.data(), ts.rgb.data());
+    ts.times.field_forward = since(t0);
+    t0 = Clock::now();
+    for (const auto& ri : ts.rays) {
+      const int o = ri.offset;
+      const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o,
+                                                 ts.t.data() + o, ri.bg);
+      float d_color[3];
+      ts.loss += huberLoss3(r.rgb, ri.target, delta, d_color);
+      compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o, ri.bg,
+                        r, d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
+    }
+    ts.times.composite = since(t0);
+  });
+
+  double loss = 0;
+  int64_t rays = 0, samples = 0;
+  for (const auto& ts : threads_) {
+    loss += ts->loss;
+    rays += int64_t(ts->rays.size());
+    if (!ts->rays.empty()) samples += ts->rays.back().offset + ts->rays.back().count;
+    stats.times.march = std::max(stats.times.march, ts->times.march);
+    stats.times.field_forward = std::max(stats.times.field_forward, ts->times.field_forward);
+    stats.times.composite = std::max(stats.times.composite, ts->times.composite);
+  }
+  stats.rays = rays;
+  stats.samples = samples;
+  stats.loss = rays > 0 ? loss / double(rays) : 0.0;
+  if (!std::isfinite(loss)) {
+    spdlog::warn("NeRF training diverged at step {} (loss {}); rolling back to the snapshot of step {}", step_, loss,
+                 snap_step_);
+    rollback();
+    stats.rolled_back = true;
+    ++step_;
+    return stats;
+  }
+  if (rays > 0) {
+    // Phase B: field backward with the mean-per-ray loss.
+    const float scale = 1.f / float(rays);
+    parallelRun(T, [&](int ti) {
+      ThreadState& ts = *threads_[size_t(ti)];
+      auto t0 = Clock::now();
+      const size_t n = ts.rays.empty() ? 0 : size_t(ts.rays.back().offset + ts.rays.back().count);
+      if (n > 0) {
+        for (size_t i = 0; i < n; ++i) ts.d_sigma[i] *= scale;
+        for (size_t i = 0; i < 3 * n; ++i) ts.d_rgb[i] *= scale;
+        model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads);
+      }
+      ts.times.field_backward = since(t0);
+    });
+    for (const auto& ts : threads_)
+      stats.times.field_backward = std::max(stats.times.field_backward, ts->times.field_backward);
+    auto t0 = Clock::now();
+    std::vector<RadianceField::Gradients*> grads;
+    for (auto& ts : threads_) grads.push_back(&ts->grads);
+    model_.field->step(grads, float(learningRate()), T);
+    stats.times.optimizer = since(t0);
+    // A NaN that the forward pass hides (e.g. behind a ReLU) still shows in the MLP weights after the
+    // update; they are small (~10^4 floats), so they are checked every step. The hash grid is
+    // checked with every snapshot.
+    for (const auto& a : model_.field->parameters()) {
+      if (a.name == "hash_grid") continue;
+      for (size_t i = 0; i < a.size; ++i)
+        if (!std::isfinite(a.data[i])) {
+          spdlog::warn("NeRF training diverged at step {} ({} not finite); rolling back to the snapshot of step {}",
+                       step_, a.name, snap_step_);
+          rollback();
+          stats.rolled_back = true;
+          ++step_;
+          return stats;
+        }
+    }
+  }
+  ++step_;
+  model_.training_steps = uint64_t(step_);
+  if (step_ % opt_.snapshot_interval == 0) snapshot();
+  total_.march += stats.times.march;
+  total_.field_forward += stats.times.field_forward;
+  total_.composite += stats.times.composite;
+  total_.field_backward += stats.times.field_backward;
+  total_.optimizer += stats.times.optimizer;
+  total_.grid_update += stats.times.grid_update;
+  return stats;
+}
+
+}  // namespace nerfslam::nerf

@@ -1,0 +1,277 @@
+#include "nerfslam/nerf/trainer.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+
+#include <pcl/conversions.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/eval/image_metrics.h"
+#include "nerfslam/nerf/export.h"
+#include "nerfslam/nerf/renderer.h"
+#include "test_support.h"
+
+namespace nerfslam::nerf {
+namespace {
+
+// A procedural scene: an opaque sphere of radius 0.8 at the origin coloured by its normal, seen from
+// cameras on a sphere of radius 3 looking at the origin; RGBA images with transparent background.
+constexpr double kSphereRadius = 0.8;
+
+SE3 lookAt(const Eigen::Vector3d& eye) {
+  const Eigen::Vector3d z = (-eye).normalized();
+  Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ());
+  if (x.norm() < 1e-6) x = Eigen::Vector3d::UnitX();
+  x.normalize();
+  const Eigen::Vector3d y = z.cross(x);
+  Eigen::Matrix3d R;
+  R << x, y, z;
+  return SE3(R, eye);
+}
+
+TrainingView syntheticView(int i, int n, int size) {
+  const double az = 2 * M_PI * i / n, el = 0.3 + 0.5 * std::sin(3.0 * i);
+  const Eigen::Vector3d eye =
+      3.0 * Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+  TrainingView v;
+  v.camera = Camera::pinhole(size, size, 1.1 * size, 1.1 * size, (size - 1) / 2.0, (size - 1) / 2.0);
+  v.T_world_cam = lookAt(eye);
+  v.image = cv::Mat(size, size, CV_8UC4, cv::Scalar::all(0));
+  const Eigen::Matrix3d R = v.T_world_cam.rotationMatrix();
+  for (int y = 0; y < size; ++y)
+    for (int x = 0; x < size; ++x) {
+      const Eigen::Vector3d d = (R * v.camera.unproject({double(x), double(y)})).normalized();
+      const double b = eye.dot(d), c = eye.squaredNorm() - kSphereRadius * kSphereRadius;
+      const double disc = b * b - c;
+      if (disc < 0) continue;
+      const Eigen::Vector3d p = eye + (-b - std::sqrt(disc)) * d;
+      const Eigen::Vector3d nrm = p.normalized();
+      auto& px = v.image.at<cv::Vec4b>(y, x);
+      for (int k = 0; k < 3; ++k) px[k] = cv::saturate_cast<uint8_t>(255.0 * (0.5 + 0.45 * nrm[k]));
+      px[3] = 255;
+    }
+  return v;
+}
+
+FieldConfig smallField() {
+  FieldConfig c;
+  c.n_levels = 8;
+  c.log2_hashmap_size = 15;
+  c.finest_resolution = 256;
+  c.hidden = 32;
+  return c;
+}
+
+TrainOptions smallTraining(int threads) {
+  TrainOptions o;
+  o.samples_per_step = 1 << 13;
+  o.threads = threads;
+  o.seed = 3;
+  o.grid_warmup_steps = 32;
+  o.grid_update_fraction = 1.0 / 8.0;
+  return o;
+}
+
+SceneTransform unitScene() {
+  SceneTransform s;
+  s.scale = 0.33;  // the sphere (radius 0.8) fills the middle of the unit cube
+  return s;
+}
+
+double testPsnr(const NerfModel& model, const std::vector<TrainingView>& test) {
+  const float white[3] = {1, 1, 1};
+  RenderOptions ro;
+  ro.normals = false;
+  double sum = 0;
+  for (const auto& v : test) {
+    const RenderResult r = renderView(model, v.camera, v.T_world_cam, ro);
+    sum += eval::psnr(cv::min(cv::max(r.rgb, 0.0), 1.0), compositeOver(v, white), 1.0);
+  }
+  return sum / double(test.size());
+}
+
+TEST(Trainer, SyntheticSphereReachesPsnrFloor) {
+  std::vector<TrainingView> train, test;
+  for (int i = 0; i < 24; ++i) (i % 8 == 0 ? test : train).push_back(syntheticView(i, 24, 48));
+  NerfModel model = NerfModel::create(smallField(), unitScene(), 1);
+  const double before = testPsnr(model, test);
+  Trainer trainer(model, train, smallTraining(2));
+  for (int i = 0; i < 300; ++i) {
+    const StepStats s = trainer.step();
+    ASSERT_FALSE(s.rolled_back) << "step " << i;
+    ASSERT_GT(s.rays, 0);
+  }
+  const double after = testPsnr(model, test);
+  std::printf("synthetic sphere: test PSNR %.2f dB before, %.2f dB after 300 steps; grid %.1f%% occupied\n", before,
+              after, 100 * model.grid->occupiedFraction());
+  EXPECT_GT(after, 22.0);
+  EXPECT_GT(after, before + 8.0);
+  // The grid has learnt the sphere: far fewer cells occupied than the initial 100%.
+  EXPECT_LT(model.grid->occupiedFraction(), 0.5);
+  // Depth at the image centre of a test view is the distance to the sphere's surface (3 - 0.8).
+  RenderOptions ro;
+  const RenderResult r = renderView(model, test[0].camera, test[0].T_world_cam, ro);
+  EXPECT_NEAR(r.depth.at<float>(24, 24), 3.0 - kSphereRadius, 0.2);
+  // Normal at the centre faces the camera.
+  const cv::Vec3f n = r.normals.at<cv::Vec3f>(24, 24);
+  const Eigen::Vector3d to_cam = test[0].T_world_cam.translation().normalized();
+  EXPECT_GT(Eigen::Vector3d(n[0], n[1], n[2]).dot(to_cam), 0.8);
+
+  // Exports: mesh vertices and density points lie near the sphere's surface (radius 0.8).
+  ExportOptions eo;
+  eo.density_threshold = 20.0;
+  const pcl::PolygonMesh mesh = extractMesh(model, eo);
+  pcl::PointCloud<pcl::PointXYZRGB> verts;
+  pcl::fromPCLPointCloud2(mesh.cloud, verts);
+  ASSERT_GT(mesh.polygons.size(), 1000u);
+  std::vector<double> err;
+  for (const auto& p : verts) err.push_back(std::fabs(Eigen::Vector3d(p.x, p.y, p.z).norm() - kSphereRadius));
+  std::nth_element(err.begin(), err.begin() + long(err.size() / 2), err.end());
+  std::printf("mesh: %zu triangles, median |r - 0.8| = %.4f\n", mesh.polygons.size(), err[err.size() / 2]);
+  EXPECT_LT(err[err.size() / 2], 0.12);
+  std::vector<PosedCamera> cams;
+  for (const auto& v : test) cams.push_back({v.camera, v.T_world_cam});
+  const auto cloud = depthPointCloud(model, cams, eo);
+  ASSERT_GT(cloud.size(), 200u);
+  err.clear();
+  for (const auto& p : cloud) err.push_back(std::fabs(Eigen::Vector3d(p.x, p.y, p.z).norm() - kSphereRadius));
+  std::nth_element(err.begin(), err.begin() + long(err.size() / 2), err.end());
+  EXPECT_LT(err[err.size() / 2], 0.12);
+
+  // CLI round trip on the trained model: render and export, and clear errors for bad input.
+  test::TempDir dir;
+  saveModel(model, dir / "model.nerf");
+  const auto m = (dir / "model.nerf").string();
+  auto r1 =
+      test::runCli("render --model " + m + " --pose \"0 0 3 0 1 0 0\" --size 64x48 --out " + (dir / "r").string());
+  EXPECT_EQ(r1.exit_code, 0) << r1.output;
+  for (const char* f :
+       {"000000_rgb.png", "000000_depth.png", "000000_depth_color.png", "000000_normals.png", "000000_uncertainty.png"})
+    EXPECT_TRUE(std::filesystem::exists(dir / "r" / f)) << f;
+  auto r2 = test::runCli("export --model " + m + " --format mesh --threshold 20 --out " + (dir / "mesh.ply").string());
+  EXPECT_EQ(r2.exit_code, 0) << r2.output;
+  EXPECT_TRUE(std::filesystem::exists(dir / "mesh.ply"));
+  auto r3 = test::runCli("export --model " + m + " --format pcd --threshold 20 --out " + (dir / "c.pcd").string());
+  EXPECT_EQ(r3.exit_code, 0) << r3.output;
+  EXPECT_TRUE(std::filesystem::exists(dir / "c.pcd"));
+  auto r4 = test::runCli("render --model " + m + " --pose \"0 0 3 0 0 0 0\" --out " + (dir / "bad").string());
+  EXPECT_NE(r4.exit_code, 0);
+  EXPECT_NE(r4.output.find("quaternion"), std::string::npos) << r4.output;
+  auto r5 = test::runCli("export --model " + m + " --format mesh --out /proc/forbidden/mesh.ply");
+  EXPECT_NE(r5.exit_code, 0);
+  { std::ofstream(dir / "foreign.nerf") << "definitely not a model"; }
+  auto r6 = test::runCli("render --model " + (dir / "foreign.nerf").string() + " --pose \"0 0 3 0 0 0 1\" --out " +
+                         (dir / "f").string());
+  EXPECT_NE(r6.exit_code, 0);
+  EXPECT_NE(r6.output.find("not a nerfslam model"), std::string::npos) << r6.output;
+}
+
+TEST(TrainCli, BadInputGivesClearErrors) {
+  test::TempDir dir;
+  auto r = test::runCli("train --transforms " + (dir / "missing.json").string() + " --out " + (dir / "o").string() +
+                        " --steps 1");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("missing.json"), std::string::npos) << r.output;
+  // A transforms file with a zero focal length.
+  std::ofstream(dir / "t.json") << R"({"camera_angle_x": 0.0, "frames": [{"file_path": "a", "transform_matrix": )"
+                                   R"([[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]})";
+  cv::imwrite((dir / "a.png").string(), cv::Mat(8, 8, CV_8UC3, cv::Scalar::all(0)));
+  r = test::runCli("train --transforms " + (dir / "t.json").string() + " --out " + (dir / "o").string() + " --steps 1");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("camera_angle_x"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir / "o" / "model.nerf"));
+}
+
+std::vector<std::vector<float>> params(NerfModel& m) {
+  std::vector<std::vector<float>> out;
+  for (auto& a : m.field->parameters()) out.emplace_back(a.data, a.data + a.size);
+  return out;
+}
+
+TEST(Trainer, DeterministicForSeedAndThreadCount) {
+  std::vector<TrainingView> views;
+  for (int i = 0; i < 6; ++i) views.push_back(syntheticView(i, 6, 32));
+  NerfModel a = NerfModel::create(smallField(), unitScene(), 5), b = NerfModel::create(smallField(), unitScene(), 5);
+  Trainer ta(a, views, smallTraining(2)), tb(b, views, smallTraining(2));
+  for (int i = 0; i < 5; ++i) {
+    const StepStats sa = ta.step(), sb = tb.step();
+    EXPECT_EQ(sa.loss, sb.loss);
+    EXPECT_EQ(sa.samples, sb.samples);
+  }
+  EXPECT_EQ(params(a), params(b));
+  EXPECT_EQ(a.grid->values(), b.grid->values());
+}
+
+TEST(Trainer, NonFiniteLossRollsBackToSnapshot) {
+  std::vector<TrainingView> views;
+  for (int i = 0; i < 6; ++i) views.push_back(syntheticView(i, 6, 32));
+  NerfModel m = NerfModel::create(smallField(), unitScene(), 5);
+  TrainOptions o = smallTraining(2);
+  o.snapshot_interval = 4;
+  Trainer t(m, views, o);
+  for (int i = 0; i < 4; ++i) t.step();  // snapshot taken after step 4
+  const auto snap = params(m);
+  const auto snap_grid = m.grid->values();
+  t.step();
+  EXPECT_NE(params(m), snap);
+  // Inject a divergence: every colour-MLP weight NaN.
+  for (auto& a : m.field->parameters())
+    if (a.name == "color.w0") std::fill(a.data, a.data + a.size, std::numeric_limits<float>::quiet_NaN());
+  m.field->parametersChanged();
+  const StepStats s = t.step();
+  EXPECT_TRUE(s.rolled_back);
+  EXPECT_EQ(t.rollbacks(), 1);
+  EXPECT_EQ(params(m), snap);
+  EXPECT_EQ(m.grid->values(), snap_grid);
+  // Training continues with finite losses.
+  for (int i = 0; i < 3; ++i) {
+    const StepStats n = t.step();
+    EXPECT_FALSE(n.rolled_back);
+    EXPECT_TRUE(std::isfinite(n.loss));
+  }
+}
+
+TEST(Trainer, RejectsBadViews) {
+  NerfModel m = NerfModel::create(smallField(), unitScene(), 5);
+  TrainingView v = syntheticView(0, 6, 32);
+  {
+    TrainingView bad = v;
+    bad.camera.fx = 0;
+    EXPECT_THROW(Trainer(m, {bad}, smallTraining(1)), Error);
+  }
+  {
+    TrainingView bad = v;
+    Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+    T(0, 3) = std::nan("");
+    bad.T_world_cam = SE3(Eigen::Quaterniond::Identity(), T.block<3, 1>(0, 3));
+    EXPECT_THROW(Trainer(m, {bad}, smallTraining(1)), Error);
+  }
+  {
+    TrainingView bad = v;
+    bad.image = cv::Mat(20, 32, CV_8UC4, cv::Scalar::all(0));  // differs from the camera
+    EXPECT_THROW(Trainer(m, {bad}, smallTraining(1)), Error);
+  }
+  EXPECT_THROW(Trainer(m, {}, smallTraining(1)), Error);
+}
+
+TEST(Trainer, MakeTrainingViewDownscalesWithPremultipliedAlpha) {
+  // Left half opaque red, right half transparent black: the averaged boundary column stays pure red.
+  cv::Mat bgra(8, 8, CV_8UC4, cv::Scalar(0, 0, 0, 0));
+  bgra(cv::Rect(0, 0, 5, 8)).setTo(cv::Scalar(0, 0, 255, 255));
+  const Camera cam = Camera::pinhole(8, 8, 10, 10, 3.5, 3.5);
+  const TrainingView v = makeTrainingView(bgra, cam, SE3(), 2.0);
+  ASSERT_EQ(v.image.cols, 4);
+  EXPECT_EQ(v.camera.width, 4);
+  EXPECT_NEAR(v.camera.fx, 5.0, 1e-12);
+  const cv::Vec4f px = v.image.at<cv::Vec4f>(0, 2);  // columns 4,5: one opaque, one transparent
+  EXPECT_NEAR(px[0], 1.0f, 1e-5);                    // R
+  EXPECT_NEAR(px[1], 0.0f, 1e-5);
+  EXPECT_NEAR(px[3], 0.5f, 1e-5);  // alpha
+}
+
+}  // namespace
+}  // namespace nerfslam::nerf
