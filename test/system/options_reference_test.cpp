@@ -1,0 +1,88 @@
+#include "nerfslam/system/options_reference.h"
+
+#include <fstream>
+#include <sstream>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/core/options_yaml.h"
+#include "nerfslam/system/slam_system.h"
+#include "test_support.h"
+
+namespace nerfslam {
+namespace {
+namespace fs = std::filesystem;
+
+fs::path sourceDir() { return fs::path(__FILE__).parent_path().parent_path().parent_path(); }
+
+TEST(OptionsReference, DocsEmbedTheGeneratedReference) {
+  std::ifstream is(sourceDir() / "docs" / "options.md");
+  ASSERT_TRUE(is) << "docs/options.md missing";
+  std::stringstream ss;
+  ss << is.rdbuf();
+  const std::string generated = optionReferenceMarkdown();
+  EXPECT_NE(ss.str().find(generated), std::string::npos)
+      << "docs/options.md is out of date: regenerate its run/train section with `nerfslam options --markdown`";
+}
+
+// Turns `a.b.c = value  # doc` lines (printOptions) into a nested YAML document.
+YAML::Node yamlFromPrinted(const std::string& printed) {
+  YAML::Node root(YAML::NodeType::Map);
+  std::istringstream is(printed);
+  std::string line;
+  while (std::getline(is, line)) {
+    const size_t eq = line.find(" = ");
+    if (line.empty() || line[0] == '#' || eq == std::string::npos) continue;
+    std::string path = line.substr(0, eq);
+    std::string value = line.substr(eq + 3);
+    if (size_t hash = value.find("  # "); hash != std::string::npos) value = value.substr(0, hash);
+    std::vector<std::string> keys;
+    for (size_t p = 0;;) {
+      size_t dot = path.find('.', p);
+      keys.push_back(path.substr(p, dot - p));
+      if (dot == std::string::npos) break;
+      p = dot + 1;
+    }
+    std::vector<YAML::Node> chain{root};
+    for (size_t i = 0; i + 1 < keys.size(); ++i) chain.push_back(chain.back()[keys[i]]);
+    chain.back()[keys.back()] = YAML::Load(value);
+  }
+  return root;
+}
+
+TEST(OptionsReference, PrintedDefaultsLoadBackExactly) {
+  const SystemOptions defaults;
+  const std::string printed = printOptions(defaults);
+  SystemOptions changed;
+  changed.local_map_keyframes = 7;
+  changed.lockstep = !changed.lockstep;
+  changed.tracking.features.max_features += 1;
+  changed.mapping.ba.huber_px *= 2;
+  ASSERT_NE(printOptions(changed), printed);
+  loadOptions(yamlFromPrinted(printed), changed, "printed");
+  EXPECT_EQ(printOptions(changed), printed);
+}
+
+TEST(OptionsReference, UnknownSystemKeyIsAnErrorWithHint) {
+  YAML::Node root = YAML::Load("local_map_keyframe: 7\n");
+  SystemOptions o;
+  try {
+    loadOptions(root, o, "run.yaml");
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("run.yaml"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("local_map_keyframes"), std::string::npos) << msg;
+  }
+}
+
+TEST(OptionsReference, CliPrintsReferenceAndDefaults) {
+  auto r = test::runCli("options --markdown");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("local_map_keyframes"), std::string::npos);
+  auto d = test::runCli("options --defaults");
+  ASSERT_EQ(d.exit_code, 0) << d.output;
+  EXPECT_NE(d.output.find("local_map_keyframes = 10"), std::string::npos) << d.output;
+}
+
+}  // namespace
+}  // namespace nerfslam
