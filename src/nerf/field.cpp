@@ -36,7 +36,6 @@ struct CheckVisitor {
     const std::string why = check(value);
     if (!why.empty()) throw fieldError(configFile(), prefix + name, why);
   }
-  void operator()(const char*, bool&, const char*) {}  // unconstrained flag
   template <class T>
   void operator()(const char* name, T& section, const char*) {
     CheckVisitor sub{prefix + name + "."};
@@ -68,9 +67,6 @@ struct RadianceField::Impl {
   // Hash grid: params, Adam moments and per-entry step counters.
   HugeVector<float> table, table_m, table_v;
   HugeVector<uint32_t> table_steps;
-  // Half-precision copy of `table` read by the forward gathers (empty when disabled):
-  // packHalfEntry(&table[2e]) for each entry e.
-  HugeVector<uint32_t> table_half;
   // MLP weights, concatenated: d0 [n_enc][H], d1 [H][16], c0 [32][H], c1 [H][H], c2 [H][16].
   std::vector<float> mlp, mlp_m, mlp_v, mlp_grad_sum;
   size_t off_d0 = 0, off_d1 = 0, off_c0 = 0, off_c1 = 0, off_c2 = 0, n_mlp = 0;
@@ -90,14 +86,7 @@ struct RadianceField::Impl {
   const float* W(size_t off) const { return mlp.data() + off; }
   const float* WT(size_t off) const { return mlp_t.data() + off; }
 
-  HashGridView grid() const {
-    return {levels.data(), int(levels.size()), table.data(), table_half.empty() ? nullptr : table_half.data()};
-  }
-  void refreshHalf() {
-    if (!cfg.half_precision_table) return;
-    table_half.resize(n_entries);
-    packHalfTable(table.data(), n_entries, table_half.data());
-  }
+  HashGridView grid() const { return {levels.data(), int(levels.size()), table.data()}; }
 
   void refreshTransposed() {
     mlp_t.resize(n_mlp);
@@ -161,7 +150,6 @@ RadianceField::RadianceField(const FieldConfig& config, uint64_t seed) {
   f.table_m.assign(f.table.size(), 0.f);
   f.table_v.assign(f.table.size(), 0.f);
   f.table_steps.assign(f.n_entries, 0u);
-  f.refreshHalf();
 
   f.off_d0 = 0;
   f.off_d1 = f.off_d0 + size_t(f.n_enc) * H;
@@ -246,7 +234,7 @@ void RadianceField::queryDensity(const float* pos, size_t n, float* sigma) const
   const float clampv = float(f.cfg.max_log_density);
   for (size_t s0 = 0; s0 < n; s0 += kTile) {
     const size_t m = std::min(kTile, n - s0);
-    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
     densityTile(f, m, encT.data(), h1.data(), d.data(), kDensityOutputs);
     for (size_t i = 0; i < m; ++i) sigma[s0 + i] = std::exp(std::min(d[i * kDensityOutputs], clampv));
   }
@@ -260,7 +248,7 @@ void RadianceField::query(const float* pos, const float* dir, size_t n, float* s
   const float clampv = float(f.cfg.max_log_density);
   for (size_t s0 = 0; s0 < n; s0 += kTile) {
     const size_t m = std::min(kTile, n - s0);
-    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
     densityTile(f, m, encT.data(), h1.data(), cin.data() + kShCoeffs, kColorIn);
     shEncodeBatch(dir + 3 * s0, m, cin.data(), kColorIn);
     colorTile(f, m, cin.data(), c1.data(), c2.data(), logits.data());
@@ -280,7 +268,7 @@ void RadianceField::densityGradient(const float* pos, size_t n, float* grad) con
   const float clampv = float(f.cfg.max_log_density);
   for (size_t s0 = 0; s0 < n; s0 += kTile) {
     const size_t m = std::min(kTile, n - s0);
-    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
     densityTile(f, m, encT.data(), h1.data(), d.data(), kDensityOutputs);
     std::fill(dd.begin(), dd.end(), 0.f);
     // trunc_exp: d sigma / d log-density = exp(min(x, clamp)) = sigma.
@@ -331,7 +319,7 @@ void RadianceField::forward(Workspace& wsp, const float* pos, const float* dir, 
     const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
     float* encT = ws.enc.data() + t * E * kTile;
     float* cin = ws.cin.data() + s0 * kColorIn;
-    hashEncode(f.grid(), pos + 3 * s0, m, encT, kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT, kTile);
     densityTile(f, m, encT, ws.h1.data() + s0 * H, cin + kShCoeffs, kColorIn);
     shEncodeBatch(dir + 3 * s0, m, cin, kColorIn);
     colorTile(f, m, cin, ws.c1.data() + s0 * H, ws.c2.data() + s0 * H, logits.data());
@@ -409,7 +397,7 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
             H));
     gemm(mm(E, H, m, encT, kTile, 1, ws.dh1.data(), H, gw + f.off_d0, H, Epilogue::kNone, nullptr, 0, true));
     gemm(mm(m, E, H, ws.dh1.data(), H, 1, f.WT(f.off_d0), E, ws.denc.data(), E));
-    hashEncodeBackward(f.grid(), ws.pos.data() + 3 * s0, m, ws.denc.data(), g.table.data(), g.touched.data(), n - s0);
+    hashEncodeBackward(f.grid(), ws.pos.data() + 3 * s0, m, ws.denc.data(), g.table.data(), g.touched.data());
   }
 }
 
@@ -438,7 +426,6 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
   // any split of the words over workers gives the same result.
   const size_t n_words = (f.n_entries + 63) / 64;
   const size_t T = per_thread.size();
-  const bool half = !f.table_half.empty();
   auto work = [&](size_t w0, size_t w1) {
     std::vector<float*> tg(T);
     std::vector<uint64_t*> tb(T);
@@ -448,7 +435,6 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
     }
     for (size_t w = w0; w < w1; ++w) {
       uint64_t any = 0;
-      bool changed = false;
       for (size_t t = 0; t < T; ++t) any |= tb[t][w];
       while (any) {
         const int b = __builtin_ctzll(any);
@@ -464,16 +450,10 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
         }
         // tiny-cuda-nn skips entries whose summed gradient is exactly zero.
         if (gsum[0] == 0.f && gsum[1] == 0.f) continue;
-        changed = true;
         adamEntry<2>(&f.table[2 * e], &f.table_m[2 * e], &f.table_v[2 * e], gsum, &f.table_steps[e], lr, f.cfg.adam,
                      f.bias);
       }
       for (size_t t = 0; t < T; ++t) tb[t][w] = 0;
-      // Refresh the fp16 copy of the word's 64 entries at once (untouched ones repack unchanged).
-      if (half && changed) {
-        const size_t e0 = w * 64, ne = std::min<size_t>(64, f.n_entries - e0);
-        packHalfTable(&f.table[2 * e0], ne, &f.table_half[e0]);
-      }
     }
   };
   const size_t workers = size_t(std::max(1, n_threads));
@@ -543,7 +523,6 @@ std::vector<U32Array> RadianceField::optimizerCounters() {
 void RadianceField::parametersChanged() {
   Impl& f = *impl_;
   f.refreshTransposed();
-  f.refreshHalf();
 }
 
 }  // namespace nerfslam::nerf

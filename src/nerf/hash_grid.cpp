@@ -111,10 +111,7 @@ HWY_INLINE void LoadPositions(const float* pos, size_t s, size_t lanes, float* x
 // hashed levels (dense levels are small and cache-resident). With pi_1 = 1 the x-neighbours of a
 // corner usually share its cache line, so corners 0, 2, 4, 6 cover a cell. The hashed levels are
 // random accesses into tables larger than L2: without this the gathers wait on memory serially.
-// `base` is the table being read or written, `entry_bytes` the bytes of one entry (8 for the fp32
-// tables, 4 for the half-precision copy).
-HWY_INLINE void PrefetchChunk(const HashGridView& grid, const void* base, size_t entry_bytes, const float* pos,
-                              size_t s, size_t n) {
+HWY_INLINE void PrefetchChunk(const HashGridView& grid, const float* base, const float* pos, size_t s, size_t n) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
   const size_t N = hn::Lanes(df);
@@ -129,39 +126,24 @@ HWY_INLINE void PrefetchChunk(const HashGridView& grid, const void* base, size_t
     hn::Vec<decltype(du)> idx[8];
     hn::Vec<decltype(df)> w[8];
     CornersVec(df, L, px, py, pz, idx, w);
-    const char* t = static_cast<const char*>(base) + entry_bytes * size_t(L.offset);
+    const float* t = base + 2 * size_t(L.offset);
     for (int c = 0; c < 8; c += 2) {
       hn::Store(idx[c], du, ib);
-      for (size_t j = 0; j < N; ++j) hwy::Prefetch(t + entry_bytes * size_t(ib[j]));
+      for (size_t j = 0; j < N; ++j) hwy::Prefetch(t + 2 * size_t(ib[j]));
     }
   }
 }
 
-void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld, size_t n_prefetch) {
+void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
   const hn::RebindToSigned<decltype(df)> di;
   const size_t N = hn::Lanes(df);
   HWY_ALIGN float xs[HWY_MAX_BYTES / 4], ys[HWY_MAX_BYTES / 4], zs[HWY_MAX_BYTES / 4];
   size_t s = 0;
-  const bool half = grid.table_half != nullptr;
-  const void* src = half ? static_cast<const void*>(grid.table_half) : static_cast<const void*>(grid.table);
-  const size_t entry_bytes = half ? 4 : 8;
-  // Binary16 -> fp32 of the 16-bit value in the low half of each lane (exact): exponent and
-  // mantissa shifted into place and rescaled by 2^112; inf/NaN get the all-ones exponent.
-  const auto k7fff = hn::Set(du, 0x7fffu), k8000 = hn::Set(du, 0x8000u), kInfExp = hn::Set(du, 0x7f800000u);
-  const auto k7bff = hn::Set(di, 0x7bff);
-  const auto k2p112 = hn::Set(df, 0x1p112f);
-  auto halfToFloat = [&](hn::Vec<decltype(du)> h) {
-    const auto a = hn::And(h, k7fff);
-    const auto t = hn::Or(hn::ShiftLeft<13>(a), hn::ShiftLeft<16>(hn::And(h, k8000)));
-    const auto fin = hn::Mul(hn::BitCast(df, t), k2p112);
-    return hn::IfThenElse(hn::RebindMask(df, hn::Gt(hn::BitCast(di, a), k7bff)), hn::BitCast(df, hn::Or(t, kInfExp)),
-                          fin);
-  };
-  PrefetchChunk(grid, src, entry_bytes, pos, 0, n);
+  PrefetchChunk(grid, grid.table, pos, 0, n);
   for (; s + N <= n; s += N) {
-    PrefetchChunk(grid, src, entry_bytes, pos, s + N, n_prefetch);
+    PrefetchChunk(grid, grid.table, pos, s + N, n);
     LoadPositions(pos, s, N, xs, ys, zs);
     const auto px = hn::Load(df, xs), py = hn::Load(df, ys), pz = hn::Load(df, zs);
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -169,21 +151,12 @@ void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float*
       hn::Vec<decltype(du)> idx[8];
       hn::Vec<decltype(df)> w[8];
       CornersVec(df, L, px, py, pz, idx, w);
+      const float* t = grid.table + 2 * size_t(L.offset);
       auto f0 = hn::Zero(df), f1 = hn::Zero(df);
-      if (half) {
-        const uint32_t* t = grid.table_half + size_t(L.offset);
-        for (int c = 0; c < 8; ++c) {
-          const auto h = hn::GatherIndex(du, t, hn::BitCast(di, idx[c]));
-          f0 = hn::MulAdd(w[c], halfToFloat(h), f0);
-          f1 = hn::MulAdd(w[c], halfToFloat(hn::ShiftRight<16>(h)), f1);
-        }
-      } else {
-        const float* t = grid.table + 2 * size_t(L.offset);
-        for (int c = 0; c < 8; ++c) {
-          const auto i2 = hn::BitCast(di, hn::Add(idx[c], idx[c]));
-          f0 = hn::MulAdd(w[c], hn::GatherIndex(df, t, i2), f0);
-          f1 = hn::MulAdd(w[c], hn::GatherIndex(df, t + 1, i2), f1);
-        }
+      for (int c = 0; c < 8; ++c) {
+        const auto i2 = hn::BitCast(di, hn::Add(idx[c], idx[c]));
+        f0 = hn::MulAdd(w[c], hn::GatherIndex(df, t, i2), f0);
+        f1 = hn::MulAdd(w[c], hn::GatherIndex(df, t + 1, i2), f1);
       }
       hn::StoreU(f0, df, enc + size_t(2 * l) * ld + s);
       hn::StoreU(f1, df, enc + size_t(2 * l + 1) * ld + s);
@@ -196,7 +169,7 @@ void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float*
 }
 
 void HashEncodeBackwardImpl(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* grad_table,
-                            uint64_t* touched, size_t n_prefetch) {
+                            uint64_t* touched) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
   const size_t N = hn::Lanes(df);
@@ -205,9 +178,9 @@ void HashEncodeBackwardImpl(const HashGridView& grid, const float* pos, size_t n
   HWY_ALIGN uint32_t ib[8][HWY_MAX_BYTES / 4];
   HWY_ALIGN float wb[8][HWY_MAX_BYTES / 4];
   size_t s = 0;
-  PrefetchChunk(grid, grad_table, 8, pos, 0, n);
+  PrefetchChunk(grid, grad_table, pos, 0, n);
   for (; s + N <= n; s += N) {
-    PrefetchChunk(grid, grad_table, 8, pos, s + N, n_prefetch);
+    PrefetchChunk(grid, grad_table, pos, s + N, n);
     LoadPositions(pos, s, N, xs, ys, zs);
     const auto px = hn::Load(df, xs), py = hn::Load(df, ys), pz = hn::Load(df, zs);
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -240,41 +213,6 @@ void HashEncodeBackwardImpl(const HashGridView& grid, const float* pos, size_t n
   }
 }
 
-// packHalfTable: halfFromFloat (hash_grid.h) without branches, 2 vectors of features (Lanes
-// entries) at a time; bit-identical to the scalar conversion.
-void PackHalfImpl(const float* HWY_RESTRICT table, size_t n_entries, uint32_t* HWY_RESTRICT out) {
-  size_t e = 0;
-#if HWY_TARGET != HWY_SCALAR
-  const hn::ScalableTag<float> df;
-  const hn::RebindToUnsigned<decltype(df)> du;
-  const hn::RebindToSigned<decltype(df)> di;
-  const size_t N = hn::Lanes(df);
-  const auto kAbs = hn::Set(du, 0x7fffffffu), kSign = hn::Set(du, 0x8000u), kOne = hn::Set(du, 1u),
-             kRebias = hn::Set(du, 0xC8000FFFu), kSubBias = hn::Set(du, 0x3f000000u), kNan = hn::Set(du, 0x7e00u),
-             kInf = hn::Set(du, 0x7c00u);
-  const auto kInfBits = hn::Set(di, 0x7f800000), kOvf = hn::Set(di, 0x47800000 - 1), kSub = hn::Set(di, 0x38800000);
-  const auto kHalf = hn::Set(df, 0.5f);
-  auto convert = [&](hn::Vec<decltype(df)> v) {
-    const auto x = hn::BitCast(du, v);
-    const auto sign = hn::And(hn::ShiftRight<16>(x), kSign);
-    const auto a = hn::And(x, kAbs);
-    const auto ai = hn::BitCast(di, a);
-    const auto normal = hn::ShiftRight<13>(hn::Add(hn::Add(a, kRebias), hn::And(hn::ShiftRight<13>(a), kOne)));
-    const auto sub = hn::Sub(hn::BitCast(du, hn::Add(hn::BitCast(df, a), kHalf)), kSubBias);
-    const auto ovf = hn::IfThenElse(hn::RebindMask(du, hn::Gt(ai, kInfBits)), kNan, kInf);
-    const auto r = hn::IfThenElse(hn::RebindMask(du, hn::Gt(ai, kOvf)), ovf,
-                                  hn::IfThenElse(hn::RebindMask(du, hn::Lt(ai, kSub)), sub, normal));
-    return hn::Or(r, sign);
-  };
-  for (; e + N <= n_entries; e += N) {
-    const auto lo = convert(hn::LoadU(df, table + 2 * e)), hi = convert(hn::LoadU(df, table + 2 * e + N));
-    // Even lanes are feature 0, odd lanes feature 1 of consecutive entries.
-    hn::StoreU(hn::Or(hn::ConcatEven(du, hi, lo), hn::ShiftLeft<16>(hn::ConcatOdd(du, hi, lo))), du, out + e);
-  }
-#endif
-  for (; e < n_entries; ++e) out[e] = packHalfEntry(table + 2 * e);
-}
-
 // NOLINTNEXTLINE(google-readability-namespace-comments)
 }  // namespace nerfslam::nerf::HWY_NAMESPACE
 HWY_AFTER_NAMESPACE();
@@ -284,7 +222,6 @@ namespace nerfslam::nerf {
 
 HWY_EXPORT(HashEncodeImpl);
 HWY_EXPORT(HashEncodeBackwardImpl);
-HWY_EXPORT(PackHalfImpl);
 
 std::vector<GridLevel> gridLevels(int n_levels, int base_resolution, double finest_resolution, int log2_hashmap_size) {
   std::vector<GridLevel> levels(size_t(std::max(n_levels, 0)));
@@ -307,10 +244,6 @@ std::vector<GridLevel> gridLevels(int n_levels, int base_resolution, double fine
   return levels;
 }
 
-void packHalfTable(const float* table, size_t n_entries, uint32_t* out) {
-  HWY_DYNAMIC_DISPATCH(PackHalfImpl)(table, n_entries, out);
-}
-
 void hashEncodeScalar(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
   for (size_t s = 0; s < n; ++s) {
     for (int l = 0; l < grid.n_levels; ++l) {
@@ -319,8 +252,8 @@ void hashEncodeScalar(const HashGridView& grid, const float* pos, size_t n, floa
       detail::cellCorners(grid.levels[l], pos + 3 * s, idx, w);
       float f0 = 0.f, f1 = 0.f;
       for (int c = 0; c < 8; ++c) {
-        f0 += w[c] * gridFeature(grid, idx[c], 0);
-        f1 += w[c] * gridFeature(grid, idx[c], 1);
+        f0 += w[c] * grid.table[2 * size_t(idx[c])];
+        f1 += w[c] * grid.table[2 * size_t(idx[c]) + 1];
       }
       enc[size_t(2 * l) * ld + s] = f0;
       enc[size_t(2 * l + 1) * ld + s] = f1;
@@ -359,7 +292,7 @@ void hashEncodePositionGradient(const HashGridView& grid, const float* pos, size
       detail::cellCorners(L, p, idx, w, f);
       const float d0 = d_enc[s * nf + 2 * l], d1 = d_enc[s * nf + 2 * l + 1];
       for (int c = 0; c < 8; ++c) {
-        const float v = d0 * gridFeature(grid, idx[c], 0) + d1 * gridFeature(grid, idx[c], 1);
+        const float v = d0 * grid.table[2 * size_t(idx[c])] + d1 * grid.table[2 * size_t(idx[c]) + 1];
         const float wx = (c & 1) ? f[0] : 1.f - f[0], sx = (c & 1) ? 1.f : -1.f;
         const float wy = (c & 2) ? f[1] : 1.f - f[1], sy = (c & 2) ? 1.f : -1.f;
         const float wz = (c & 4) ? f[2] : 1.f - f[2], sz = (c & 4) ? 1.f : -1.f;
@@ -373,13 +306,13 @@ void hashEncodePositionGradient(const HashGridView& grid, const float* pos, size
   }
 }
 
-void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld, size_t n_prefetch) {
-  HWY_DYNAMIC_DISPATCH(HashEncodeImpl)(grid, pos, n, enc, ld, std::max(n, n_prefetch));
+void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
+  HWY_DYNAMIC_DISPATCH(HashEncodeImpl)(grid, pos, n, enc, ld);
 }
 
 void hashEncodeBackward(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* grad_table,
-                        uint64_t* touched, size_t n_prefetch) {
-  HWY_DYNAMIC_DISPATCH(HashEncodeBackwardImpl)(grid, pos, n, d_enc, grad_table, touched, std::max(n, n_prefetch));
+                        uint64_t* touched) {
+  HWY_DYNAMIC_DISPATCH(HashEncodeBackwardImpl)(grid, pos, n, d_enc, grad_table, touched);
 }
 
 }  // namespace nerfslam::nerf

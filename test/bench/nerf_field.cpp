@@ -81,16 +81,9 @@ Samples raySamples(size_t n, uint32_t seed, size_t per_ray = 64, float dt = 0.01
   return s;
 }
 
-// The paper field with the fp32 table read directly (half = false, the pre-05:20 code path) or
-// through its fp16 copy (half = true, the default): both in the same run for a fair ratio.
-RadianceField& paperField(bool half) {
-  auto make = [](bool h) {
-    FieldConfig c;
-    c.half_precision_table = h;
-    return RadianceField(c, 1);
-  };
-  static RadianceField f32 = make(false), f16 = make(true);
-  return half ? f16 : f32;
+RadianceField& paperField() {
+  static RadianceField f(FieldConfig(), 1);
+  return f;
 }
 
 struct TargetScope {
@@ -107,29 +100,21 @@ void setFlops(benchmark::State& st, double samples, double flops_per_sample, con
 }
 
 // A hash table of 2^log2_t entries per level (19: the paper's 64 MiB; 14: 1.3 MiB, cache-resident).
-// half: also build the fp16 copy and read through it.
 struct Table {
   std::vector<GridLevel> levels;
   HugeVector<float> data;
-  HugeVector<uint32_t> half;
-  explicit Table(int log2_t, bool use_half = false) : levels(gridLevels(16, 16, 2048.0, log2_t)) {
+  explicit Table(int log2_t) : levels(gridLevels(16, 16, 2048.0, log2_t)) {
     data.resize(2 * size_t(levels.back().offset + levels.back().size));
     std::mt19937 rng(7);
     std::uniform_real_distribution<float> u(-1e-4f, 1e-4f);
     for (float& x : data) x = u(rng);
-    if (use_half) {
-      half.resize(data.size() / 2);
-      packHalfTable(data.data(), half.size(), half.data());
-    }
   }
-  HashGridView view() const {
-    return {levels.data(), int(levels.size()), data.data(), half.empty() ? nullptr : half.data()};
-  }
+  HashGridView view() const { return {levels.data(), int(levels.size()), data.data()}; }
 };
 
 void BM_EncodeForward(benchmark::State& st, int64_t target) {
   TargetScope ts(target);
-  const Table tab(int(st.range(0)), st.range(1) != 0);
+  const Table tab(int(st.range(0)));
   const HashGridView grid = tab.view();
   const size_t n = 1 << 14;
   const Samples s = raySamples(n, 1);
@@ -140,7 +125,7 @@ void BM_EncodeForward(benchmark::State& st, int64_t target) {
   }
   st.counters["samples/s"] =
       benchmark::Counter(double(n), benchmark::Counter::kIsRate | benchmark::Counter::kIsIterationInvariant);
-  st.counters["GB/s"] = benchmark::Counter(double(n) * kGatherBytes * (st.range(1) ? 0.5 : 1.0) * 1e-9,
+  st.counters["GB/s"] = benchmark::Counter(double(n) * kGatherBytes * 1e-9,
                                            benchmark::Counter::kIsRate | benchmark::Counter::kIsIterationInvariant);
 }
 
@@ -235,7 +220,7 @@ void BM_MlpBackward(benchmark::State& st, int64_t target) {
 // step of n samples touches).
 void BM_OptimizerStep(benchmark::State& st, int64_t target) {
   TargetScope ts(target);
-  RadianceField& f = paperField(st.range(2) != 0);
+  RadianceField& f = paperField();
   const size_t n = size_t(st.range(0));
   const int threads = int(st.range(1));
   const Samples s = raySamples(n, 4);
@@ -262,7 +247,7 @@ void BM_OptimizerStep(benchmark::State& st, int64_t target) {
 // End to end: `threads` workers each forward+backward their share of n samples, then step().
 void BM_TrainStep(benchmark::State& st, int64_t target) {
   TargetScope ts(target);
-  RadianceField& f = paperField(st.range(3) != 0);
+  RadianceField& f = paperField();
   const size_t n = size_t(st.range(0));
   const int threads = int(st.range(1));
   const float dt = st.range(2) == 0 ? 0.01f : std::sqrt(3.f) / 1024.f;
@@ -321,39 +306,27 @@ int main(int argc, char** argv) {
   }
   for (int64_t t : availableSimdTargets()) {
     const std::string name = hwy::TargetName(t);
-    // Args: log2 T, fp16 table copy (0: fp32 gathers, 1: fp16 gathers).
-    benchmark::RegisterBenchmark(("EncodeForward/" + name).c_str(), BM_EncodeForward, t)
-        ->Args({19, 0})
-        ->Args({19, 1})
-        ->Args({14, 0})
-        ->Args({14, 1});
+    benchmark::RegisterBenchmark(("EncodeForward/" + name).c_str(), BM_EncodeForward, t)->Arg(19)->Arg(14);
     benchmark::RegisterBenchmark(("EncodeBackward/" + name).c_str(), BM_EncodeBackward, t)->Arg(19)->Arg(14);
     benchmark::RegisterBenchmark(("MlpForward/" + name).c_str(), BM_MlpForward, t);
     benchmark::RegisterBenchmark(("MlpBackward/" + name).c_str(), BM_MlpBackward, t);
   }
   const int64_t best = availableSimdTargets().front();
   const std::string bn = hwy::TargetName(best);
-  // Args: samples, threads, fp16 table copy.
   benchmark::RegisterBenchmark(("OptimizerStep/" + bn).c_str(), BM_OptimizerStep, best)
-      ->Args({1 << 16, 1, 0})
-      ->Args({1 << 16, 1, 1})
-      ->Args({1 << 16, 2, 0})
-      ->Args({1 << 16, 2, 1})
+      ->Args({1 << 16, 1})
+      ->Args({1 << 16, 2})
       ->Unit(benchmark::kMillisecond)
       ->UseRealTime();
   for (int64_t t : availableSimdTargets()) {
     const std::string name = hwy::TargetName(t);
     if (t != best && name != "AVX2" && name != "SSE4") continue;
-    // Args: samples per step, threads, sample spacing (0: 1 cm, 1: sqrt(3)/1024), fp16 table copy.
+    // Args: samples per step, threads, sample spacing (0: 1 cm, 1: sqrt(3)/1024).
     benchmark::RegisterBenchmark(("TrainStep/" + name).c_str(), BM_TrainStep, t)
-        ->Args({1 << 16, 1, 0, 0})
-        ->Args({1 << 16, 1, 0, 1})
-        ->Args({1 << 16, 2, 0, 0})
-        ->Args({1 << 16, 2, 0, 1})
-        ->Args({1 << 16, 1, 1, 0})
-        ->Args({1 << 16, 1, 1, 1})
-        ->Args({1 << 16, 2, 1, 0})
-        ->Args({1 << 16, 2, 1, 1})
+        ->Args({1 << 16, 1, 0})
+        ->Args({1 << 16, 2, 0})
+        ->Args({1 << 16, 1, 1})
+        ->Args({1 << 16, 2, 1})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }

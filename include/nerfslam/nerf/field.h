@@ -26,7 +26,6 @@
 // Change log of this header (kept stable for the pipeline engineer):
 //   v1 (04:15 UTC): initial API.
 //   v2 (04:20 UTC): added gradients(Gradients&) (read access for tests/diagnostics). Additive.
-//   v3 (05:20 UTC): FieldConfig::half_precision_table (default on). Additive.
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -58,10 +57,6 @@ struct FieldConfig {
   double max_log_density = 15.0;
   // Half-width of the uniform initialisation of the hash-table features (paper: 1e-4).
   double hash_init_range = 1e-4;
-  // Keep an IEEE half-precision copy of the hash table for the forward gathers (instant-ngp stores
-  // its grids in fp16): half the bytes per corner. Gradients, Adam and parameters() stay fp32; the
-  // copy is refreshed by step() and parametersChanged().
-  bool half_precision_table = true;
   AdamOptions adam;
 
   template <class V>
@@ -74,8 +69,6 @@ struct FieldConfig {
     v("hidden", hidden, "Hidden-layer width of the density and colour MLPs (a multiple of 16)", check::range(16, 128));
     v("max_log_density", max_log_density, "Clamp of the log-density before exp()", check::range(1.0, 30.0));
     v("hash_init_range", hash_init_range, "Hash features start uniform in [-r, r]", check::range(0.0, 1.0));
-    v("half_precision_table", half_precision_table,
-      "Read the hash table through an fp16 copy in the forward pass (fp32 master, gradients and Adam)");
     v("adam", adam, "Adam optimiser");
   }
 };

@@ -17,7 +17,6 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
-#include <cstring>
 #include <new>
 #include <vector>
 
@@ -78,78 +77,21 @@ inline uint32_t gridIndex(const GridLevel& level, uint32_t x, uint32_t y, uint32
 // Kernels over a batch of n samples. pos is n*3 in [0,1]. Encodings are feature-major
 // ("SoA"): enc[k * ld + s] for feature k = 2*level + f of sample s (ld >= n).
 // table: the concatenated level tables (size sum(levels.size) * 2 floats).
-// table_half: optional half-precision copy of the same table, one 32-bit word per entry (feature 0
-// in the low 16 bits, feature 1 in the high 16 bits, IEEE binary16, as instant-ngp stores its
-// grids). When set, the forward kernels (hashEncode*, hashEncodePositionGradient) gather from it
-// instead of `table`: half the bytes and one gather per corner; interpolation stays fp32.
 struct HashGridView {
   const GridLevel* levels = nullptr;
   int n_levels = 0;
   const float* table = nullptr;
-  const uint32_t* table_half = nullptr;
 };
 
-// IEEE binary16 conversions (round to nearest even; overflow to inf; NaN stays NaN; subnormals
-// exact). floatFromHalf is exact.
-inline uint16_t halfFromFloat(float value) {
-  uint32_t x;
-  std::memcpy(&x, &value, 4);
-  const uint32_t sign = (x >> 16) & 0x8000u;
-  x &= 0x7fffffffu;
-  uint32_t o;
-  if (x >= 0x47800000u) {  // >= 2^16 (rounds to inf), inf or NaN
-    o = x > 0x7f800000u ? 0x7e00u : 0x7c00u;
-  } else if (x < 0x38800000u) {  // below the smallest normal half: the FPU rounds the subnormal
-    float f;
-    std::memcpy(&f, &x, 4);
-    f += 0.5f;  // 2^-1: aligns the half's subnormal ulp (2^-24) with the float's ulp
-    uint32_t r;
-    std::memcpy(&r, &f, 4);
-    o = r - 0x3f000000u;
-  } else {
-    const uint32_t odd = (x >> 13) & 1u;
-    x += (uint32_t(15 - 127) << 23) + 0xfffu + odd;  // rebias, round to nearest even
-    o = x >> 13;
-  }
-  return uint16_t(o | sign);
-}
-inline float floatFromHalf(uint16_t h) {
-  // Shift exponent+mantissa into float position and rescale by 2^(127-15) (exact, also for
-  // subnormals); inf/NaN get the float's all-ones exponent.
-  const uint32_t a = uint32_t(h & 0x7fffu), s = uint32_t(h & 0x8000u) << 16;
-  uint32_t t = a << 13;
-  float f;
-  if (a >= 0x7c00u) {
-    t |= 0x7f800000u | s;
-    std::memcpy(&f, &t, 4);
-    return f;
-  }
-  t |= s;
-  std::memcpy(&f, &t, 4);
-  return f * 0x1p112f;
-}
-inline uint32_t packHalfEntry(const float* features) {
-  return uint32_t(halfFromFloat(features[0])) | (uint32_t(halfFromFloat(features[1])) << 16);
-}
-// out[e] = packHalfEntry(table + 2e) for e in [0, n_entries).
-void packHalfTable(const float* table, size_t n_entries, uint32_t* out);
-// The value of feature f of entry e that the forward kernels read.
-inline float gridFeature(const HashGridView& grid, size_t e, int f) {
-  return grid.table_half ? floatFromHalf(uint16_t(grid.table_half[e] >> (16 * f))) : grid.table[2 * e + size_t(f)];
-}
-
 // Forward encoding (dispatched to the best SIMD target) and its scalar reference.
-// n_prefetch (>= n, or 0 for n): positions readable at pos; the kernels prefetch the table lines of
-// the samples after the current ones, so a caller working in tiles passes what remains of its
-// batch and the first samples of the next tile are not fetched cold.
-void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld, size_t n_prefetch = 0);
+void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld);
 void hashEncodeScalar(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld);
 
 // Backward: grad_table[2*e + f] += sum over samples and corners of w * d_enc; d_enc is
 // sample-major [s][2*L] here (what the MLP backward produces). `touched` is a bitmap over entries
 // (bit e set when entry e received a gradient). Dispatched and scalar reference.
 void hashEncodeBackward(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* grad_table,
-                        uint64_t* touched, size_t n_prefetch = 0);
+                        uint64_t* touched);
 void hashEncodeBackwardScalar(const HashGridView& grid, const float* pos, size_t n, const float* d_enc,
                               float* grad_table, uint64_t* touched);
 
