@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <sstream>
 
 #include <pcl/PCLPointCloud2.h>
@@ -19,31 +21,97 @@ namespace nerfslam::render {
 namespace fs = std::filesystem;
 using Eigen::Vector3d;
 
+namespace {
+
+// One numeric PLY property of point `i`, whatever its stored type (PCL keeps PLY's types).
+double fieldValue(const pcl::PCLPointCloud2& blob, const pcl::PCLPointField& f, size_t i) {
+  const uint8_t* p = blob.data.data() + i * blob.point_step + f.offset;
+  switch (f.datatype) {
+    case pcl::PCLPointField::INT8:
+      return *reinterpret_cast<const int8_t*>(p);
+    case pcl::PCLPointField::UINT8:
+      return *p;
+    case pcl::PCLPointField::INT16: {
+      int16_t v;
+      std::memcpy(&v, p, 2);
+      return v;
+    }
+    case pcl::PCLPointField::UINT16: {
+      uint16_t v;
+      std::memcpy(&v, p, 2);
+      return v;
+    }
+    case pcl::PCLPointField::INT32: {
+      int32_t v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case pcl::PCLPointField::UINT32: {
+      uint32_t v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case pcl::PCLPointField::FLOAT32: {
+      float v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case pcl::PCLPointField::FLOAT64: {
+      double v;
+      std::memcpy(&v, p, 8);
+      return v;
+    }
+    default:
+      return std::numeric_limits<double>::quiet_NaN();
+  }
+}
+
+const pcl::PCLPointField* findField(const pcl::PCLPointCloud2& blob, std::initializer_list<const char*> names) {
+  for (const char* n : names)
+    for (const auto& f : blob.fields)
+      if (f.name == n) return &f;
+  return nullptr;
+}
+
+}  // namespace
+
 PreviewCloud loadPointCloudPly(const fs::path& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) fail("{}: point cloud file not found", path.string());
   pcl::PCLPointCloud2 blob;
   pcl::PLYReader reader;
   if (reader.read(path.string(), blob) < 0) fail("{}: not a readable PLY point cloud", path.string());
-  bool has_rgb = false;
-  for (const auto& f : blob.fields)
-    if (f.name == "rgb" || f.name == "rgba") has_rgb = true;
+  const pcl::PCLPointField* fx = findField(blob, {"x"});
+  const pcl::PCLPointField* fy = findField(blob, {"y"});
+  const pcl::PCLPointField* fz = findField(blob, {"z"});
+  if (!fx || !fy || !fz) fail("{}: field 'x', 'y' or 'z': the PLY vertices have no position", path.string());
+  // Colours: packed rgb/rgba (PCL merges PLY red/green/blue into it), else the number of
+  // observations of a sparse map point (more observations: warmer), else none (coloured by height).
+  const pcl::PCLPointField* frgb = findField(blob, {"rgb", "rgba"});
+  const pcl::PCLPointField* fobs = frgb ? nullptr : findField(blob, {"observations"});
+  const size_t n = blob.width * blob.height;
   PreviewCloud c;
   c.label = path.filename().string();
-  if (has_rgb) {
-    pcl::PointCloud<pcl::PointXYZRGB> pc;
-    pcl::fromPCLPointCloud2(blob, pc);
-    for (const auto& p : pc.points)
-      if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) {
-        c.points.emplace_back(p.x, p.y, p.z);
-        c.colors.emplace_back(p.b, p.g, p.r);
-      }
-  } else {
-    pcl::PointCloud<pcl::PointXYZ> pc;
-    pcl::fromPCLPointCloud2(blob, pc);
-    for (const auto& p : pc.points)
-      if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) c.points.emplace_back(p.x, p.y, p.z);
+  double max_obs = 1;
+  if (fobs)
+    for (size_t i = 0; i < n; ++i) max_obs = std::max(max_obs, fieldValue(blob, *fobs, i));
+  for (size_t i = 0; i < n; ++i) {
+    const Vector3d p(fieldValue(blob, *fx, i), fieldValue(blob, *fy, i), fieldValue(blob, *fz, i));
+    if (!p.allFinite()) continue;
+    c.points.push_back(p.cast<float>());
+    if (frgb) {
+      uint32_t packed;
+      std::memcpy(&packed, blob.data.data() + i * blob.point_step + frgb->offset, 4);
+      c.colors.emplace_back(packed & 0xff, (packed >> 8) & 0xff, (packed >> 16) & 0xff);
+    } else if (fobs) {
+      const double t = std::log(std::max(1.0, fieldValue(blob, *fobs, i))) / std::log(std::max(2.0, max_obs));
+      cv::Mat1b level(1, 1, static_cast<uchar>(std::clamp(t, 0.0, 1.0) * 255));
+      cv::Mat3b bgr;
+      cv::applyColorMap(level, bgr, cv::COLORMAP_TURBO);
+      c.colors.push_back(bgr(0, 0));
+    }
   }
+  if (fobs) c.label += " (colour: observations)";
   return c;
 }
 
