@@ -15,8 +15,8 @@ bin=$root/build/nerfslam
 mkdir -p "$out"
 start=$(date +%s)
 
-echo "== 1/4 rendering the synthetic room (300 frames, 640x480)"
-"$bin" synth --scene room --trajectory handheld --frames 300 --size 640x480 --seed 1 --out "$out/sequence"
+echo "== 1/4 rendering the synthetic room (200 frames, 640x480)"
+"$bin" synth --scene room --trajectory handheld --frames 200 --size 640x480 --seed 1 --out "$out/sequence"
 
 echo "== 2/4 monocular SLAM"
 "$bin" run --dataset "tum:$out/sequence" --out "$out/slam"
@@ -25,7 +25,7 @@ echo "== 2/4 monocular SLAM"
 
 echo "== 3/4 map preview"
 "$bin" render-preview --points "$out/slam/map_points.ply" --trajectory "$out/slam/trajectory.txt:red" \
-  --keyframes "$out/slam/keyframes.txt" --out "$out/map_preview.png"
+  --keyframes "$out/slam/keyframes.txt" --up 0,-1,0 --out "$out/map_preview.png"
 
 echo "== 4/4 NeRF (${NERF_SECONDS:-60} s on the CPU, every 8th view held out)"
 "$bin" train --transforms "$out/sequence/transforms.json" --out "$out/nerf" --seconds "${NERF_SECONDS:-60}" \

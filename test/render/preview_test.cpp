@@ -100,6 +100,38 @@ TEST(Preview, ParsesViewsAndColours) {
 
 // A synthetic room without its ceiling: back-projected depth as a coloured dense cloud, GT and a drifting estimate as
 // trajectories, every 50th GT pose as keyframes; drawn through the CLI.
+TEST(Preview, ReadsDoublePositionsAndColoursByObservations) {
+  // The SLAM runner's map_points.ply: ASCII, double x/y/z, an int observation count per point.
+  test::TempDir tmp;
+  {
+    std::ofstream os(tmp / "map.ply");
+    os << "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+          "property double z\nproperty int observations\nend_header\n"
+          "0.5 -0.25 2.125 2\n1 2 3 40\n-1 0 4 3\n";
+  }
+  const PreviewCloud c = loadPointCloudPly(tmp / "map.ply");
+  ASSERT_EQ(c.points.size(), 3u);
+  EXPECT_FLOAT_EQ(c.points[0].x(), 0.5f);
+  EXPECT_FLOAT_EQ(c.points[0].y(), -0.25f);
+  EXPECT_FLOAT_EQ(c.points[0].z(), 2.125f);
+  ASSERT_EQ(c.colors.size(), 3u);
+  EXPECT_NE(c.colors[0], c.colors[1]) << "2 and 40 observations must get different colours";
+}
+
+TEST(Preview, PlyWithoutPositionsIsAnError) {
+  test::TempDir tmp;
+  {
+    std::ofstream os(tmp / "bad.ply");
+    os << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float a\nproperty float b\nend_header\n1 2\n";
+  }
+  try {
+    loadPointCloudPly(tmp / "bad.ply");
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.ply"), std::string::npos) << e.what();
+  }
+}
+
 TEST(PreviewCli, DrawsCloudTrajectoriesAndKeyframes) {
   if (!fs::exists(test::cliPath())) GTEST_SKIP() << "nerfslam binary not built";
   test::TempDir tmp;
