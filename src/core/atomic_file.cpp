@@ -36,7 +36,8 @@ void ensureDirectory(const fs::path& dir) {
   if (dir.empty()) return;
   std::error_code ec;
   fs::create_directories(dir, ec);
-  if (ec || !fs::is_directory(dir)) fail("{}: cannot create output directory: {}", dir.string(), ec ? ec.message() : "not a directory");
+  if (ec || !fs::is_directory(dir))
+    fail("{}: cannot create output directory: {}", dir.string(), ec ? ec.message() : "not a directory");
 }
 
 AtomicOutput::AtomicOutput(fs::path path) : path_(std::move(path)) {
@@ -75,7 +76,8 @@ void writeFileAtomic(const fs::path& path, const std::function<void(std::ostream
 }
 
 void writeStringAtomic(const fs::path& path, std::string_view content) {
-  writeFileAtomic(path, [&](std::ostream& os) { os.write(content.data(), static_cast<std::streamsize>(content.size())); });
+  writeFileAtomic(path,
+                  [&](std::ostream& os) { os.write(content.data(), static_cast<std::streamsize>(content.size())); });
 }
 
 }  // namespace nerfslam

@@ -25,8 +25,7 @@ fs::path cliPath() { return fs::path(NERFSLAM_CLI_PATH); }
 
 TempDir::TempDir() {
   static std::atomic<int> counter{0};
-  path_ = fs::temp_directory_path() /
-          ("nerfslam_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+  path_ = fs::temp_directory_path() / ("nerfslam_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
   fs::remove_all(path_);
   fs::create_directories(path_);
 }

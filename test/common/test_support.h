@@ -36,10 +36,9 @@ CommandResult runCli(const std::string& args);
 }  // namespace nerfslam::test
 
 // In a TEST body: resolves `sub` under the data dir into `var`, or skips (fails under CI) when absent.
-#define NERFSLAM_REQUIRE_DATA(var, sub)                                                            \
-  const std::filesystem::path var = ::nerfslam::test::dataDir() / (sub);                         \
-  if (!std::filesystem::exists(var)) {                                                             \
-    if (::nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << var;       \
-    GTEST_SKIP() << "test data not found: " << var                                                 \
-                 << " (set NERFSLAM_DATA_DIR to the shared data folder)";                          \
+#define NERFSLAM_REQUIRE_DATA(var, sub)                                                                     \
+  const std::filesystem::path var = ::nerfslam::test::dataDir() / (sub);                                    \
+  if (!std::filesystem::exists(var)) {                                                                      \
+    if (::nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << var;                  \
+    GTEST_SKIP() << "test data not found: " << var << " (set NERFSLAM_DATA_DIR to the shared data folder)"; \
   }

@@ -8,8 +8,8 @@
 //     std::string matcher = "patch";
 //     template <class V> void visit(V& v) {
 //       v("fast_threshold", fast_threshold, "FAST corner threshold on 8-bit intensities", check::range(1, 255));
-//       v("min_parallax_deg", min_parallax_deg, "Smallest median parallax accepted by initialisation", check::positive<double>());
-//       v("matcher", matcher, "Map-point matcher", check::oneOf({"patch", "orb"}));
+//       v("min_parallax_deg", min_parallax_deg, "Smallest median parallax accepted by initialisation",
+//       check::positive<double>()); v("matcher", matcher, "Map-point matcher", check::oneOf({"patch", "orb"}));
 //     }
 //   };
 //

@@ -13,7 +13,7 @@ using Vector7d = Eigen::Matrix<double, 7, 1>;
 
 class SE3 {
  public:
-  SE3();  // identity
+  SE3();                                                       // identity
   SE3(const Eigen::Quaterniond& q, const Eigen::Vector3d& t);  // q is normalised
   SE3(const Eigen::Matrix3d& R, const Eigen::Vector3d& t);     // R is re-orthonormalised
   static SE3 fromMatrix(const Eigen::Matrix4d& T);
