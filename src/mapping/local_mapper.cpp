@@ -341,6 +341,7 @@ BaResult LocalMapper::localBundleAdjustment(KeyframeId id, int* n_keyframes, int
 int LocalMapper::cullRedundantKeyframes(KeyframeId id) {
   if (!opt_.cull_keyframes) return 0;
   int culled = 0;
+  std::unordered_map<KeyframeId, std::shared_ptr<const Frame>> frames;
   for (const auto& [k, w] : map_.covisibleKeyframes(id)) {
     const auto kf = map_.keyframe(k);
     if (!kf || kf->fixed || k == id) continue;
@@ -357,8 +358,14 @@ int LocalMapper::cullRedundantKeyframes(KeyframeId id) {
       int seen = 0;
       for (const auto& [ok, oidx] : p.observations) {
         if (ok == k) continue;
-        const auto okf = map_.keyframe(ok);
-        if (okf && okf->frame->keypoints[oidx].octave <= oct + 1) ++seen;
+        // One Map::keyframe() copy per keyframe, not per observation (each copy holds the
+        // keyframe's point-id vector and takes the Map lock).
+        auto cit = frames.find(ok);
+        if (cit == frames.end()) {
+          const auto okf = map_.keyframe(ok);
+          cit = frames.emplace(ok, okf ? okf->frame : nullptr).first;
+        }
+        if (cit->second && cit->second->keypoints[oidx].octave <= oct + 1) ++seen;
         if (seen >= 3) break;
       }
       redundant += seen >= 3;

@@ -1,12 +1,54 @@
 #include "nerfslam/mapping/map.h"
 
 #include <algorithm>
+#include <chrono>
+#include <cstdint>
+#include <cstring>
 #include <mutex>
 #include <set>
 
 #include "nerfslam/core/error.h"
 
 namespace nerfslam {
+namespace {
+
+// Per-thread lock acquisition statistics (Map::threadLockWait). The uncontended path is one
+// try_lock; only a contended acquisition is timed.
+thread_local MapLockWait t_lock_wait;
+
+void recordWait(std::chrono::steady_clock::time_point t0) {
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  ++t_lock_wait.contended;
+  t_lock_wait.total_ms += ms;
+  t_lock_wait.max_ms = std::max(t_lock_wait.max_ms, ms);
+}
+
+std::unique_lock<std::shared_mutex> lockExclusive(std::shared_mutex& m) {
+  ++t_lock_wait.acquisitions;
+  std::unique_lock<std::shared_mutex> lock(m, std::try_to_lock);
+  if (!lock.owns_lock()) {
+    const auto t0 = std::chrono::steady_clock::now();
+    lock.lock();
+    recordWait(t0);
+  }
+  return lock;
+}
+
+std::shared_lock<std::shared_mutex> lockShared(std::shared_mutex& m) {
+  ++t_lock_wait.acquisitions;
+  std::shared_lock<std::shared_mutex> lock(m, std::try_to_lock);
+  if (!lock.owns_lock()) {
+    const auto t0 = std::chrono::steady_clock::now();
+    lock.lock();
+    recordWait(t0);
+  }
+  return lock;
+}
+
+}  // namespace
+
+MapLockWait Map::threadLockWait() { return t_lock_wait; }
+void Map::resetThreadLockWait() { t_lock_wait = {}; }
 
 int Keyframe::numTrackedPoints() const {
   int n = 0;
@@ -21,7 +63,7 @@ KeyframeId Map::addKeyframe(Keyframe kf) {
   const size_t n = kf.frame->keypoints.size();
   if (kf.points.empty()) kf.points.assign(n, kNoPoint);
   if (kf.points.size() != n) fail("Map::addKeyframe: {} point slots for {} keypoints", kf.points.size(), n);
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   kf.id = next_kf_++;
   if (keyframes_.empty()) kf.fixed = true;
   for (size_t i = 0; i < n; ++i) {
@@ -44,7 +86,7 @@ KeyframeId Map::addKeyframe(Keyframe kf) {
 
 PointId Map::addPoint(const Eigen::Vector3d& position, const std::map<KeyframeId, int>& observations) {
   if (!position.allFinite()) return kNoPoint;
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   MapPoint p;
   p.position = position;
   for (const auto& [kid, idx] : observations) {
@@ -65,7 +107,7 @@ PointId Map::addPoint(const Eigen::Vector3d& position, const std::map<KeyframeId
 }
 
 bool Map::addObservation(PointId pid, KeyframeId kid, int idx) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   auto pit = points_.find(pid);
   auto kit = keyframes_.find(kid);
   if (pit == points_.end() || kit == keyframes_.end()) return false;
@@ -93,7 +135,7 @@ void Map::eraseObservationLocked(PointId pid, KeyframeId kid) {
 }
 
 void Map::eraseObservation(PointId pid, KeyframeId kid) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   eraseObservationLocked(pid, kid);
   bump();
 }
@@ -109,13 +151,13 @@ void Map::erasePointLocked(PointId pid) {
 }
 
 void Map::erasePoint(PointId pid) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   erasePointLocked(pid);
   bump();
 }
 
 void Map::eraseKeyframe(KeyframeId kid, KeyframeId parent) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   auto kit = keyframes_.find(kid);
   if (kit == keyframes_.end()) return;
   auto pit = keyframes_.find(parent);
@@ -130,7 +172,7 @@ void Map::eraseKeyframe(KeyframeId kid, KeyframeId parent) {
 
 void Map::fusePoints(PointId from, PointId to) {
   if (from == to) return;
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   auto fit = points_.find(from);
   auto tit = points_.find(to);
   if (fit == points_.end() || tit == points_.end()) return;
@@ -164,18 +206,40 @@ void Map::updateAppearanceLocked(MapPoint& p) {
   }
   if (normal.norm() > 0) p.normal = normal.normalized();
   if (descs.empty()) return;
-  // Medoid: the descriptor with the least median distance to the others (ORB-SLAM).
+  // Medoid: the descriptor with the least median distance to the others (ORB-SLAM). This runs under
+  // the exclusive lock for every point a new keyframe observes, so binary descriptors use a direct
+  // popcount over a symmetric distance table instead of cv::norm per pair.
+  const size_t n = descs.size();
+  std::vector<int> dist(n * n, 0);
+  const bool binary = descs[0].depth() == CV_8U && descs[0].cols % 8 == 0 &&
+                      std::all_of(descs.begin(), descs.end(), [&](const cv::Mat& m) {
+                        return m.depth() == CV_8U && m.cols == descs[0].cols && m.isContinuous();
+                      });
+  for (size_t i = 0; i < n; ++i)
+    for (size_t j = i + 1; j < n; ++j) {
+      int d = 0;
+      if (binary) {
+        const uint8_t* a = descs[i].ptr<uint8_t>();
+        const uint8_t* b = descs[j].ptr<uint8_t>();
+        for (int k = 0; k < descs[0].cols; k += 8) {
+          uint64_t wa, wb;
+          std::memcpy(&wa, a + k, 8);
+          std::memcpy(&wb, b + k, 8);
+          d += __builtin_popcountll(wa ^ wb);
+        }
+      } else {
+        d = static_cast<int>(cv::norm(descs[i], descs[j], descs[i].depth() == CV_8U ? cv::NORM_HAMMING : cv::NORM_L2));
+      }
+      dist[i * n + j] = dist[j * n + i] = d;
+    }
   size_t best = 0;
   int best_median = std::numeric_limits<int>::max();
-  for (size_t i = 0; i < descs.size(); ++i) {
-    std::vector<int> d;
-    d.reserve(descs.size());
-    for (size_t j = 0; j < descs.size(); ++j)
-      d.push_back(
-          static_cast<int>(cv::norm(descs[i], descs[j], descs[i].depth() == CV_8U ? cv::NORM_HAMMING : cv::NORM_L2)));
-    std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
-    if (d[d.size() / 2] < best_median) {
-      best_median = d[d.size() / 2];
+  std::vector<int> d(n);
+  for (size_t i = 0; i < n; ++i) {
+    std::copy(dist.begin() + i * n, dist.begin() + (i + 1) * n, d.begin());
+    std::nth_element(d.begin(), d.begin() + n / 2, d.end());
+    if (d[n / 2] < best_median) {
+      best_median = d[n / 2];
       best = i;
     }
   }
@@ -183,7 +247,7 @@ void Map::updateAppearanceLocked(MapPoint& p) {
 }
 
 void Map::updatePointAppearance(PointId pid) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   auto pit = points_.find(pid);
   if (pit == points_.end()) return;
   updateAppearanceLocked(pit->second);
@@ -191,7 +255,7 @@ void Map::updatePointAppearance(PointId pid) {
 }
 
 void Map::setKeyframePose(KeyframeId id, const SE3& T) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   auto kit = keyframes_.find(id);
   if (kit == keyframes_.end()) return;
   kit->second.T_world_cam = T;
@@ -199,7 +263,7 @@ void Map::setKeyframePose(KeyframeId id, const SE3& T) {
 }
 
 void Map::applyUpdate(const MapUpdate& u) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   for (const auto& [kid, T] : u.keyframe_poses) {
     auto kit = keyframes_.find(kid);
     if (kit != keyframes_.end() && !kit->second.fixed) kit->second.T_world_cam = T;
@@ -225,7 +289,7 @@ void Map::applyUpdate(const MapUpdate& u) {
 }
 
 void Map::increaseVisible(const std::vector<PointId>& pids) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   for (PointId pid : pids) {
     auto it = points_.find(pid);
     if (it != points_.end()) ++it->second.visible;
@@ -233,7 +297,7 @@ void Map::increaseVisible(const std::vector<PointId>& pids) {
 }
 
 void Map::increaseFound(const std::vector<PointId>& pids) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   for (PointId pid : pids) {
     auto it = points_.find(pid);
     if (it != points_.end()) ++it->second.found;
@@ -241,7 +305,7 @@ void Map::increaseFound(const std::vector<PointId>& pids) {
 }
 
 void Map::transform(const Sim3& T) {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   for (auto& [id, kf] : keyframes_) kf.T_world_cam = T.transformPose(kf.T_world_cam);
   for (auto& [id, r] : retired_) r.second = SE3(r.second.rotation(), T.scale() * r.second.translation());
   for (auto& [id, p] : points_) p.position = T * p.position;
@@ -249,7 +313,7 @@ void Map::transform(const Sim3& T) {
 }
 
 void Map::clear() {
-  std::unique_lock lock(mutex_);
+  auto lock = lockExclusive(mutex_);
   keyframes_.clear();
   points_.clear();
   retired_.clear();
@@ -257,7 +321,7 @@ void Map::clear() {
 }
 
 std::optional<SE3> Map::resolvePose(KeyframeId id) const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   SE3 T_chain;  // T_parent_..._id accumulated
   for (int hops = 0; hops < 100000; ++hops) {
     auto kit = keyframes_.find(id);
@@ -271,21 +335,21 @@ std::optional<SE3> Map::resolvePose(KeyframeId id) const {
 }
 
 std::optional<Keyframe> Map::keyframe(KeyframeId id) const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   auto it = keyframes_.find(id);
   if (it == keyframes_.end()) return std::nullopt;
   return it->second;
 }
 
 std::optional<MapPoint> Map::point(PointId id) const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   auto it = points_.find(id);
   if (it == points_.end()) return std::nullopt;
   return it->second;
 }
 
 std::vector<Keyframe> Map::keyframes() const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   std::vector<Keyframe> out;
   out.reserve(keyframes_.size());
   for (const auto& [id, kf] : keyframes_) out.push_back(kf);
@@ -293,14 +357,14 @@ std::vector<Keyframe> Map::keyframes() const {
 }
 
 std::vector<KeyframeId> Map::keyframeIds() const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   std::vector<KeyframeId> out;
   for (const auto& [id, kf] : keyframes_) out.push_back(id);
   return out;
 }
 
 std::vector<MapPoint> Map::points() const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   std::vector<MapPoint> out;
   out.reserve(points_.size());
   for (const auto& [id, p] : points_) out.push_back(p);
@@ -309,7 +373,7 @@ std::vector<MapPoint> Map::points() const {
 }
 
 std::vector<MapPoint> Map::points(const std::vector<PointId>& ids) const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   std::vector<MapPoint> out;
   out.reserve(ids.size());
   for (PointId id : ids) {
@@ -320,23 +384,23 @@ std::vector<MapPoint> Map::points(const std::vector<PointId>& ids) const {
 }
 
 std::optional<KeyframeId> Map::lastKeyframeId() const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   if (keyframes_.empty()) return std::nullopt;
   return keyframes_.rbegin()->first;
 }
 
 size_t Map::numKeyframes() const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   return keyframes_.size();
 }
 
 size_t Map::numPoints() const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   return points_.size();
 }
 
 std::vector<std::pair<KeyframeId, int>> Map::covisibleKeyframes(KeyframeId id, int min_shared) const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   auto kit = keyframes_.find(id);
   if (kit == keyframes_.end()) return {};
   std::map<KeyframeId, int> counts;
@@ -357,7 +421,7 @@ std::vector<std::pair<KeyframeId, int>> Map::covisibleKeyframes(KeyframeId id, i
 }
 
 std::vector<PointId> Map::pointsSeenBy(const std::vector<KeyframeId>& kfs) const {
-  std::shared_lock lock(mutex_);
+  auto lock = lockShared(mutex_);
   std::set<PointId> ids;
   for (KeyframeId k : kfs) {
     auto kit = keyframes_.find(k);

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <ceres/cost_function.h>
 #include <ceres/manifold.h>
 
 #include "nerfslam/core/error.h"
@@ -169,6 +170,63 @@ TEST(PoseManifold, PlusMinusConsistentAndMatchesSE3) {
       m->Plus(x, dm, ym);
       for (int r = 0; r < 7; ++r) EXPECT_NEAR(J[r * 6 + c], (yp[r] - ym[r]) / (2 * h), 1e-6);
     }
+  }
+}
+
+// The analytic Jacobians, projected on the pose manifold's tangent space, match central differences
+// of the residual along the manifold (pose) and in space (point).
+TEST(BundleAdjustment, ReprojectionJacobianMatchesFiniteDifferences) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> uni(-1, 1);
+  const auto manifold = makePoseManifold();
+  for (int trial = 0; trial < 20; ++trial) {
+    Vector6d xi;
+    for (int k = 0; k < 6; ++k) xi(k) = (k < 3 ? 0.5 : 1.0) * uni(rng);
+    const SE3 T_world_cam = SE3::exp(xi);
+    const Eigen::Vector3d pc(uni(rng), uni(rng), 3 + uni(rng));  // in front of the camera
+    Eigen::Vector3d pw = T_world_cam * pc;
+    double x[7];
+    poseToParams(T_world_cam, x);
+    const Eigen::Vector2d uv(300 + 50 * uni(rng), 200 + 50 * uni(rng));
+    const auto cost = makeReprojectionCost(uv, 1.5, 500, 480, 320, 240);
+    const double* params[2] = {x, pw.data()};
+    double r[2], J_pose[14], J_point[6];
+    double* jac[2] = {J_pose, J_point};
+    ASSERT_TRUE(cost->Evaluate(params, r, jac));
+    double plus_jac[7 * 6];
+    ASSERT_TRUE(manifold->PlusJacobian(x, plus_jac));
+    const Eigen::Matrix<double, 2, 6> J_tangent = Eigen::Map<Eigen::Matrix<double, 2, 7, Eigen::RowMajor>>(J_pose) *
+                                                  Eigen::Map<Eigen::Matrix<double, 7, 6, Eigen::RowMajor>>(plus_jac);
+    auto residual = [&](const double* pose, const double* point) {
+      const double* p[2] = {pose, point};
+      Eigen::Vector2d out;
+      EXPECT_TRUE(cost->Evaluate(p, out.data(), nullptr));
+      return out;
+    };
+    const double h = 1e-6;
+    for (int k = 0; k < 6; ++k) {
+      double d[6] = {0, 0, 0, 0, 0, 0}, xp[7], xm[7];
+      d[k] = h;
+      manifold->Plus(x, d, xp);
+      d[k] = -h;
+      manifold->Plus(x, d, xm);
+      const Eigen::Vector2d num = (residual(xp, pw.data()) - residual(xm, pw.data())) / (2 * h);
+      EXPECT_NEAR(J_tangent(0, k), num(0), 1e-4 * (1 + std::abs(num(0)))) << "trial " << trial << " pose dir " << k;
+      EXPECT_NEAR(J_tangent(1, k), num(1), 1e-4 * (1 + std::abs(num(1)))) << "trial " << trial << " pose dir " << k;
+    }
+    const Eigen::Map<Eigen::Matrix<double, 2, 3, Eigen::RowMajor>> Jp(J_point);
+    for (int k = 0; k < 3; ++k) {
+      Eigen::Vector3d pp = pw, pm = pw;
+      pp(k) += h;
+      pm(k) -= h;
+      const Eigen::Vector2d num = (residual(x, pp.data()) - residual(x, pm.data())) / (2 * h);
+      EXPECT_NEAR(Jp(0, k), num(0), 1e-4 * (1 + std::abs(num(0)))) << "trial " << trial << " point dir " << k;
+      EXPECT_NEAR(Jp(1, k), num(1), 1e-4 * (1 + std::abs(num(1)))) << "trial " << trial << " point dir " << k;
+    }
+    // The residual itself is the scaled pixel error.
+    const Eigen::Vector3d c = T_world_cam.inverse() * pw;
+    EXPECT_NEAR(r[0] * 1.5, 500 * c.x() / c.z() + 320 - uv.x(), 1e-9);
+    EXPECT_NEAR(r[1] * 1.5, 480 * c.y() / c.z() + 240 - uv.y(), 1e-9);
   }
 }
 

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <map>
 #include <random>
 #include <thread>
 
@@ -163,6 +164,51 @@ TEST(Map, ConcurrentInsertAndEraseKeepInvariants) {
       }
   for (const MapPoint& p : map.points()) EXPECT_GE(p.observations.size(), 2u);
   EXPECT_GT(checks, 0);
+}
+
+// A point's descriptor is the medoid of its observations: the observed descriptor with the least
+// median Hamming distance to the others (reference computed here with cv::norm), for 2 to 9
+// observations.
+TEST(Map, DescriptorIsTheHammingMedoid) {
+  for (int n_obs = 2; n_obs <= 9; ++n_obs) {
+    Map map;
+    std::vector<KeyframeId> kfs;
+    for (int k = 0; k < n_obs; ++k) kfs.push_back(map.addKeyframe(makeKf(4, 100 * n_obs + k)));
+    std::map<KeyframeId, int> obs;
+    for (KeyframeId k : kfs) obs[k] = 2;
+    const PointId pid = map.addPoint(Eigen::Vector3d(0, 0, 5), obs);
+    ASSERT_NE(pid, kNoPoint);
+    std::vector<cv::Mat> d;
+    for (KeyframeId k : kfs) d.push_back(map.keyframe(k)->frame->descriptors.row(2));
+    int best_median = 1 << 30;
+    cv::Mat expected;
+    for (size_t i = 0; i < d.size(); ++i) {
+      std::vector<int> dist;
+      for (size_t j = 0; j < d.size(); ++j) dist.push_back(static_cast<int>(cv::norm(d[i], d[j], cv::NORM_HAMMING)));
+      std::nth_element(dist.begin(), dist.begin() + dist.size() / 2, dist.end());
+      if (dist[dist.size() / 2] < best_median) {
+        best_median = dist[dist.size() / 2];
+        expected = d[i];
+      }
+    }
+    EXPECT_EQ(cv::norm(map.point(pid)->descriptor, expected, cv::NORM_HAMMING), 0) << n_obs << " observations";
+  }
+}
+
+// Lock statistics count the calling thread's acquisitions; an uncontended lock never waits.
+TEST(Map, ThreadLockWaitCountsAcquisitions) {
+  Map map;
+  map.addKeyframe(makeKf(4, 1));
+  Map::resetThreadLockWait();
+  EXPECT_EQ(Map::threadLockWait().acquisitions, 0u);
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(map.numKeyframes(), 1u);
+  const MapLockWait w = Map::threadLockWait();
+  EXPECT_EQ(w.acquisitions, 3u);
+  EXPECT_EQ(w.contended, 0u);
+  EXPECT_EQ(w.max_ms, 0.0);
+  // Another thread's acquisitions are not counted here.
+  std::thread([&] { EXPECT_EQ(map.numPoints(), 0u); }).join();
+  EXPECT_EQ(Map::threadLockWait().acquisitions, 3u);
 }
 
 }  // namespace

@@ -14,8 +14,9 @@
 #include "nerfslam/core/pose.h"
 
 namespace ceres {
+class CostFunction;
 class Manifold;
-}
+}  // namespace ceres
 
 namespace nerfslam {
 
@@ -24,6 +25,10 @@ namespace nerfslam {
 void poseToParams(const SE3& T_world_cam, double* x);
 SE3 poseFromParams(const double* x);
 std::unique_ptr<ceres::Manifold> makePoseManifold();
+// The reprojection residual bundleAdjust uses, with analytic Jacobians: parameter blocks (pose x as
+// above, 7; world point, 3), residual (projection - uv) / sigma (2).
+std::unique_ptr<ceres::CostFunction> makeReprojectionCost(const Eigen::Vector2d& uv, double sigma, double fx, double fy,
+                                                          double cx, double cy);
 
 struct BundleAdjustmentOptions {
   double huber_px = 2.45;      // Huber loss width in pixels (sqrt of chi2(2 dof, 95%) = 5.99)

@@ -65,6 +65,14 @@ struct MapUpdate {
   std::vector<PointId> erase_points;
 };
 
+// Time the calling thread spent waiting for the Map's lock (acquisitions that found it taken).
+struct MapLockWait {
+  uint64_t acquisitions = 0;  // all lock acquisitions
+  uint64_t contended = 0;     // acquisitions that had to wait
+  double total_ms = 0;
+  double max_ms = 0;  // longest single wait
+};
+
 class Map {
  public:
   explicit Map(Camera camera = {});
@@ -119,6 +127,11 @@ class Map {
   std::vector<std::pair<KeyframeId, int>> covisibleKeyframes(KeyframeId id, int min_shared = 1) const;
   // Points observed by the given keyframes (each once).
   std::vector<PointId> pointsSeenBy(const std::vector<KeyframeId>& kfs) const;
+
+  // Lock-wait statistics of the calling thread, over all Map instances, since the thread started or
+  // the last resetThreadLockWait().
+  static MapLockWait threadLockWait();
+  static void resetThreadLockWait();
 
   // Incremented on every write.
   uint64_t version() const { return version_.load(std::memory_order_acquire); }
