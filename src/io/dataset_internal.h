@@ -87,6 +87,10 @@ std::vector<double> parseNumbers(const Line& line, const fs::path& file, size_t 
 // Throws "FILE:LINE: timestamp T is not after the previous one (P)" when t <= prev.
 void checkIncreasing(double prev, double t, const fs::path& file, size_t line);
 
+// An image width or height read as a number: must be a whole number in [1, 65535], checked before
+// any conversion to int (a cast of 1e300 is undefined behaviour). Errors name `where` and `field`.
+int imageDimension(double value, const std::string& where, const std::string& field);
+
 struct TimedPose {
   double t = 0.0;
   SE3 pose;

@@ -138,4 +138,10 @@ std::string readYamlText(const fs::path& file) {
   return os.str();
 }
 
+int imageDimension(double value, const std::string& where, const std::string& field) {
+  if (!std::isfinite(value) || value < 1 || value > 65535 || value != std::floor(value))
+    throw fieldError(where, field, fmt::format("image size {} is not a whole number in [1, 65535]", value));
+  return static_cast<int>(value);
+}
+
 }  // namespace nerfslam::io_detail

@@ -20,6 +20,7 @@ namespace {
 constexpr double kGtTolerance = 0.02;  // seconds
 
 std::vector<double> yamlNumbers(const YAML::Node& root, const std::string& key, const fs::path& file, size_t expected) {
+  if (!root.IsMap()) throw fieldError(file.string(), key, "missing: the file is not a YAML map");
   const YAML::Node n = root[key];
   if (!n) throw fieldError(file.string(), key, "missing");
   std::vector<double> v;
@@ -49,7 +50,8 @@ Sensor readSensorYaml(const fs::path& file) {
   const auto intr = yamlNumbers(y, "intrinsics", file, 4);
   const auto res = yamlNumbers(y, "resolution", file, 2);
   Sensor s;
-  s.camera = Camera::pinhole(static_cast<int>(res[0]), static_cast<int>(res[1]), intr[0], intr[1], intr[2], intr[3]);
+  s.camera = Camera::pinhole(imageDimension(res[0], file.string(), "resolution"),
+                             imageDimension(res[1], file.string(), "resolution"), intr[0], intr[1], intr[2], intr[3]);
   if (const YAML::Node m = y["camera_model"]; m && m.as<std::string>("") != "pinhole")
     throw fieldError(file.string(), "camera_model", "'" + m.as<std::string>("") + "' is not supported (pinhole only)");
   std::string model = "none";
@@ -66,6 +68,7 @@ Sensor readSensorYaml(const fs::path& file) {
   }
   const YAML::Node t = y["T_BS"];
   if (!t) throw fieldError(file.string(), "T_BS", "missing");
+  if (!t.IsMap()) throw fieldError(file.string(), "T_BS", "expected a map with a 16-number 'data' list");
   const auto d = yamlNumbers(t, "data", file, 16);
   Eigen::Matrix4d T;
   for (int r = 0; r < 4; ++r)

@@ -122,17 +122,20 @@ std::unique_ptr<Dataset> openStrecha(const fs::path& root, const DatasetOptions&
     for (double d : dist)
       if (d != 0) fail("{}:{}: non-zero distortion is not supported", cf.string(), lines[3].number);
     const auto C = parseNumbers(lines[7], cf, 3, "camera centre");
-    const auto size = parseNumbers(lines[8], cf, 2, "width height");
+    const auto size_d = parseNumbers(lines[8], cf, 2, "width height");
+    const std::string size_where = fmt::format("{}:{}", cf.string(), lines[8].number);
+    const int size[2] = {imageDimension(size_d[0], size_where, "width height"),
+                         imageDimension(size_d[1], size_where, "width height")};
     if (!isRotation(R, 1e-3)) fail("{}:{}: R is not a rotation matrix", cf.string(), lines[4].number);
     if (K0) {
       checkSameK(K, *K0, cf.string());
-      if (static_cast<int>(size[0]) != width || static_cast<int>(size[1]) != height)
+      if (size[0] != width || size[1] != height)
         fail("{}:{}: image size {}x{} differs from {}'s {}x{}", cf.string(), lines[8].number, size[0], size[1],
              first_cam.string(), width, height);
     } else {
       K0 = K;
-      width = static_cast<int>(size[0]);
-      height = static_cast<int>(size[1]);
+      width = size[0];
+      height = size[1];
       first_cam = cf;
     }
     FrameEntry e;

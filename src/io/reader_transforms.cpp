@@ -115,8 +115,8 @@ std::unique_ptr<Dataset> openTransforms(const fs::path& path, const DatasetOptio
   // Intrinsics.
   int w = 0, h = 0;
   if (j.contains("w") && j.contains("h")) {
-    w = static_cast<int>(std::lround(number(j, "w", file)));
-    h = static_cast<int>(std::lround(number(j, "h", file)));
+    w = imageDimension(std::round(number(j, "w", file)), file.string(), "w");
+    h = imageDimension(std::round(number(j, "h", file)), file.string(), "h");
   } else {
     const cv::Mat first = readImage(frames.front().image, ImageMode::kUnchanged);
     w = first.cols;

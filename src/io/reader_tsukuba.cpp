@@ -52,7 +52,8 @@ std::unique_ptr<Dataset> openTsukuba(const fs::path& root, const DatasetOptions&
     }
     if (!nums) fail("{}: no 'fx fy cx cy width height' line", intr.string());
     const auto& n = *nums;
-    cam = Camera::pinhole(static_cast<int>(n[4]), static_cast<int>(n[5]), n[0], n[1], n[2], n[3]);
+    cam = Camera::pinhole(imageDimension(n[4], intr.string(), "width"), imageDimension(n[5], intr.string(), "height"),
+                          n[0], n[1], n[2], n[3]);
     source = intr.string();
   }
   auto ds = std::make_unique<SequenceDataset>("tsukuba", root);

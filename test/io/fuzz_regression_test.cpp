@@ -1,0 +1,113 @@
+// Regression tests for inputs the fuzzers (test/fuzz, docs/fuzzing.md) found to crash or trip the
+// sanitizers. Each feeds the minimised reproducer to the parser and expects a nerfslam::Error.
+#include <fstream>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/io/dataset.h"
+#include "test_support.h"
+
+namespace nerfslam {
+namespace {
+namespace fs = std::filesystem;
+
+void writeText(const fs::path& p, const std::string& s) {
+  fs::create_directories(p.parent_path());
+  std::ofstream o(p, std::ios::binary);
+  o << s;
+}
+
+// Expects openDataset to throw a nerfslam::Error whose message contains every needle; any other
+// exception type is a failure (it would escape the CLI's error handling).
+void expectDatasetError(const std::string& kind, const fs::path& root, std::initializer_list<std::string> needles) {
+  try {
+    openDataset(kind, root);
+    ADD_FAILURE() << "no error thrown";
+  } catch (const Error& e) {
+    const std::string msg = e.what();
+    for (const auto& n : needles) EXPECT_NE(msg.find(n), std::string::npos) << "'" << n << "' not in: " << msg;
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "expected nerfslam::Error, got another exception: " << e.what();
+  }
+}
+
+// A EuRoC cam0 folder with one 752x480 image listed in data.csv and the given sensor.yaml.
+fs::path eurocWithSensor(const test::TempDir& dir, const std::string& sensor_yaml) {
+  const fs::path cam0 = dir / "mav0/cam0";
+  fs::create_directories(cam0 / "data");
+  EXPECT_TRUE(cv::imwrite((cam0 / "data/1403715273262142976.png").string(), cv::Mat(480, 752, CV_8UC1, cv::Scalar(9))));
+  writeText(cam0 / "data.csv", "#timestamp [ns],filename\n1403715273262142976,1403715273262142976.png\n");
+  writeText(cam0 / "sensor.yaml", sensor_yaml);
+  return dir.path();
+}
+
+const std::string kSensorHead =
+    "sensor_type: camera\n"
+    "camera_model: pinhole\n"
+    "intrinsics: [458.654, 457.296, 367.215, 248.375]\n"
+    "distortion_model: radial-tangential\n"
+    "distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]\n";
+const std::string kTBS = "T_BS:\n  cols: 4\n  rows: 4\n  data: [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]\n";
+
+// fuzz_dataset_euroc: a sensor.yaml that is a scalar made readSensorYaml index a scalar node, and
+// yaml-cpp's YAML::BadSubscript escaped (reader_euroc.cpp yamlNumbers, root[key] outside the try).
+TEST(FuzzRegression, EurocSensorYamlWhoseRootIsAScalar) {
+  test::TempDir dir;
+  expectDatasetError("euroc", eurocWithSensor(dir, "1527336214\n"), {"sensor.yaml"});
+}
+
+// Same escape one level down: T_BS given as a scalar instead of a map with `data`.
+TEST(FuzzRegression, EurocSensorYamlWhoseTBSIsAScalar) {
+  test::TempDir dir;
+  expectDatasetError("euroc", eurocWithSensor(dir, kSensorHead + "resolution: [752, 480]\nT_BS: 5\n"),
+                     {"sensor.yaml", "T_BS"});
+}
+
+// UBSan: resolution [1e300, 480] was cast to int (float-cast-overflow, reader_euroc.cpp
+// static_cast<int>(res[0])) before any range check. It must be rejected, naming the field.
+TEST(FuzzRegression, EurocSensorYamlWithOutOfRangeResolution) {
+  test::TempDir dir;
+  expectDatasetError("euroc", eurocWithSensor(dir, kSensorHead + "resolution: [1e300, 480]\n" + kTBS),
+                     {"sensor.yaml", "resolution"});
+}
+
+// A Strecha folder: images/0000.jpg and 0001.jpg (768x512) with the given .camera files.
+fs::path strechaWithCameras(const test::TempDir& dir, const std::string& cam0, const std::string& cam1) {
+  for (const char* n : {"0000.jpg", "0001.jpg"}) {
+    fs::create_directories(dir / "images");
+    EXPECT_TRUE(cv::imwrite((dir / "images" / n).string(), cv::Mat(512, 768, CV_8UC3, cv::Scalar(9, 9, 9))));
+  }
+  writeText(dir / "gt_dense_cameras/0000.jpg.camera", cam0);
+  writeText(dir / "gt_dense_cameras/0001.jpg.camera", cam1);
+  return dir.path();
+}
+
+std::string strechaCamera(const std::string& size_line) {
+  return "689.87 0 379.7975\n0 691.04 251.3275\n0 0 1\n0 0 0\n"
+         "0.450927 -0.0945642 -0.887537\n-0.892535 -0.0401974 -0.449183\n0.00679989 0.994707 -0.102528\n"
+         "-7.28137 -7.57667 0.204446\n" +
+         size_line + "\n";
+}
+
+// UBSan (fuzz_dataset_strecha): the "width height" line 1e13 512 was cast to int (float-cast-overflow,
+// reader_multiview.cpp static_cast<int>(size[0])) before any range check, in the second camera
+// (compared with the first) and in the first (taken as the sequence size). It must be rejected
+// as a bad "width height" line of that file.
+TEST(FuzzRegression, StrechaCameraWithOutOfRangeSizeInSecondFile) {
+  test::TempDir dir;
+  expectDatasetError("strecha", strechaWithCameras(dir, strechaCamera("768 512"), strechaCamera("1e13 512")),
+                     {"0001.jpg.camera", "width height"});
+}
+
+TEST(FuzzRegression, StrechaCameraWithOutOfRangeSizeInFirstFile) {
+  test::TempDir dir;
+  expectDatasetError("strecha", strechaWithCameras(dir, strechaCamera("1e13 512"), strechaCamera("768 512")),
+                     {"0000.jpg.camera", "width height"});
+}
+
+}  // namespace
+}  // namespace nerfslam
