@@ -187,6 +187,7 @@ RunResult runSlam(const RunOptions& ro) {
   rep["frames_tracked"] = traj.size();
   rep["initialized"] = slam.initialized();
   rep["initializations"] = slam.initializationCount();
+  rep["initialization_model"] = slam.initializationModel();
   rep["relocalizations"] = slam.relocalizations();
   rep["keyframes"] = slam.map().numKeyframes();
   rep["keyframes_dropped"] = slam.droppedKeyframes();

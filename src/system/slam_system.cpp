@@ -94,6 +94,7 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
   state_ = TrackingState::kTracking;
   initialized_once_ = true;
   ++initializations_;
+  init_model_ = r.model;
   reference_ = id1;
   frames_since_keyframe_ = 0;
   // The reference frame of the initialisation becomes tracked retroactively.

@@ -111,6 +111,8 @@ class SlamSystem {
   uint64_t droppedKeyframes() const { return mapping_->droppedKeyframes(); }
   const std::string& lastInitMessage() const { return last_init_message_; }
   int initializationCount() const { return initializations_; }
+  // Two-view model of the last successful initialisation ("fundamental" or "homography"; empty before).
+  const std::string& initializationModel() const { return init_model_; }
   int relocalizations() const { return relocalizations_; }
 
  private:
@@ -129,6 +131,7 @@ class SlamSystem {
   bool initialized_once_ = false;
   int initializations_ = 0, relocalizations_ = 0;
   std::string last_init_message_;
+  std::string init_model_;
   std::vector<FrameRecord> records_;
   // Local map cache.
   std::vector<TrackingMapPoint> local_points_;
