@@ -1,5 +1,7 @@
 #include "nerfslam/core/timing.h"
 
+#include <ctime>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -86,6 +88,12 @@ std::string TimingStats::summary() const {
   const double mean = std::accumulate(s.begin(), s.end(), 0.0) / static_cast<double>(s.size());
   return fmt::format("n={} mean={:.3f} median={:.3f} p99={:.3f} max={:.3f} ms", s.size(), mean, nearestRank(s, 50),
                      nearestRank(s, 99), *std::max_element(s.begin(), s.end()));
+}
+
+double threadCpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
 }
 
 }  // namespace nerfslam

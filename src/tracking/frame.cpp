@@ -9,20 +9,13 @@
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/timing.h"
 
 namespace nerfslam {
 namespace {
 
-// Thread CPU time (see FrameTimings).
-struct Clock {
-  using time_point = double;
-  static double now() {
-    timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
-  }
-};
-double msSince(double t0) { return Clock::now() - t0; }
+// Stage timings are thread CPU time (see FrameTimings).
+double msSince(double t0) { return threadCpuMs() - t0; }
 
 constexpr int kPatchSize = 31;
 constexpr int kHalfPatch = 15;
@@ -163,7 +156,7 @@ Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOpti
   f.timestamp = timestamp;
   f.camera = camera;
 
-  auto t0 = Clock::now();
+  auto t0 = threadCpuMs();
   cv::Mat grey;
   if (image.channels() == 3)
     cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
@@ -193,7 +186,7 @@ Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOpti
   const int L = static_cast<int>(f.pyramid.size());
   double area_sum = 0;
   for (int l = 0; l < L; ++l) area_sum += 1.0 / (f.level_scale[l] * f.level_scale[l]);
-  t0 = Clock::now();
+  t0 = threadCpuMs();
   std::vector<std::vector<cv::KeyPoint>> level_kps(static_cast<size_t>(L));
   for (int l = 0; l < L; ++l) {
     const int target =
@@ -202,7 +195,7 @@ Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOpti
   }
   f.timings.fast_ms = msSince(t0);
 
-  t0 = Clock::now();
+  t0 = threadCpuMs();
   static thread_local cv::Ptr<cv::ORB> orb =
       cv::ORB::create(500, 1.2f, 1, kEdge, 0, 2, cv::ORB::HARRIS_SCORE, kPatchSize);
   std::vector<cv::Mat> level_desc(static_cast<size_t>(L));

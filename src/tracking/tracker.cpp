@@ -7,19 +7,13 @@
 
 #include <fmt/format.h>
 
+#include "nerfslam/core/timing.h"
+
 namespace nerfslam {
 namespace {
 
-// Thread CPU time (see FrameTimings).
-struct Clock {
-  using time_point = double;
-  static double now() {
-    timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
-  }
-};
-double msSince(double t0) { return Clock::now() - t0; }
+// Stage timings are thread CPU time (see FrameTimings).
+double msSince(double t0) { return threadCpuMs() - t0; }
 
 // Keeps matches in the three most populated bins of the rotation-difference histogram.
 void rotationConsistency(const Frame& frame, const std::vector<TrackingMapPoint>& map, std::vector<MapMatch>* m) {
@@ -150,7 +144,7 @@ TrackingResult Tracker::track(const Frame& frame, const std::vector<TrackingMapP
     return r;
   }
   const Eigen::Matrix3d K = frame.camera.K();
-  auto t0 = Clock::now();
+  auto t0 = threadCpuMs();
   SE3 pose = prior ? *prior : predictedPose();
 
   // Coarse pass: wide window around the motion-model prediction.
@@ -172,16 +166,16 @@ TrackingResult Tracker::track(const Frame& frame, const std::vector<TrackingMapP
                             r.num_candidates);
     return r;
   }
-  t0 = Clock::now();
+  t0 = threadCpuMs();
   PoseOptimizationResult o = optimizePose(K, observations(frame, local_map, m), pose, opt_.optimizer);
   r.timings.optimization_ms += msSince(t0);
   if (o.converged) pose = o.T_world_cam;
 
   // Fine pass: narrow window around the refined pose (recovers points the coarse pass missed).
-  t0 = Clock::now();
+  t0 = threadCpuMs();
   m = matchByProjection(frame, local_map, pose, opt_.fine_radius_px, opt_, &r.num_candidates);
   r.timings.matching_ms += msSince(t0);
-  t0 = Clock::now();
+  t0 = threadCpuMs();
   o = optimizePose(K, observations(frame, local_map, m), pose, opt_.optimizer);
   r.timings.optimization_ms += msSince(t0);
 

@@ -18,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "nerfslam/core/timing.h"
 #include "nerfslam/nerf/field.h"
 #include "nerfslam/nerf/hash_grid.h"
 #include "nerfslam/nerf/mlp.h"
@@ -40,11 +41,7 @@ double processCpuSeconds() {
   return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
-double threadCpuSeconds() {
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-}  // GFLOP/s of one core per target
+double threadCpuSeconds() { return 1e-3 * threadCpuMs(); }  // GFLOP/s of one core per target
 
 // Samples along rays (ray order, as the trainer produces them) through random origins and
 // directions of the unit cube, `dt` apart: 0.01 (sparse, pessimistic: no reuse on the fine levels)

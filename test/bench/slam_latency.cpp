@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "nerfslam/core/timing.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/mapping/map.h"
 #include "nerfslam/system/slam_system.h"
@@ -27,12 +28,6 @@ namespace nerfslam {
 namespace {
 
 std::string g_sequence = "kitti06_first51";
-
-double threadCpuMs() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
 
 double processCpuMs() {
   timespec ts{};

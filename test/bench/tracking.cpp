@@ -13,6 +13,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "nerfslam/core/timing.h"
 #include "nerfslam/tracking/initializer.h"
 #include "nerfslam/tracking/tracker.h"
 #include "test_support.h"
@@ -21,11 +22,7 @@ namespace nerfslam {
 namespace {
 
 // Thread CPU time: the one-core cost, independent of how loaded the machine is.
-double cpuMs() {
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
-}
+double cpuMs() { return threadCpuMs(); }
 struct Clock {
   static double now() { return cpuMs(); }
 };

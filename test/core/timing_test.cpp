@@ -1,5 +1,7 @@
 #include "nerfslam/core/timing.h"
 
+#include <chrono>
+
 #include <gtest/gtest.h>
 #include <spdlog/spdlog.h>
 
@@ -124,4 +126,16 @@ TEST(Logging, ValidatesLevel) {
 }
 
 }  // namespace
+TEST(Timing, ThreadCpuTimeCountsWorkNotSleep) {
+  const double t0 = threadCpuMs();
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  const double slept = threadCpuMs() - t0;
+  EXPECT_LT(slept, 20.0) << "sleeping must not consume thread CPU time";
+  const double t1 = threadCpuMs();
+  volatile double x = 0;
+  Stopwatch sw;
+  while (sw.elapsedMs() < 30) x = x + 1.0;
+  EXPECT_GT(threadCpuMs() - t1, 1.0) << "busy work must consume thread CPU time";
+}
+
 }  // namespace nerfslam

@@ -19,6 +19,11 @@
 
 namespace nerfslam {
 
+// CPU time consumed by the calling thread so far, in milliseconds (CLOCK_THREAD_CPUTIME_ID). The cost
+// of work on one core, independent of how many other processes share the machine; wall time minus
+// this is time spent preempted or blocked.
+double threadCpuMs();
+
 // Monotonic (steady_clock) stopwatch, started on construction.
 class Stopwatch {
  public:
