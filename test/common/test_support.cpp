@@ -36,10 +36,9 @@ TempDir::~TempDir() {
   fs::remove_all(path_, ec);
 }
 
-CommandResult runCli(const std::string& args) {
+CommandResult runCommand(const std::string& command_line) {
   CommandResult r;
-  std::string cmd = "'" + cliPath().string() + "' " + args + " 2>&1";
-  FILE* p = ::popen(cmd.c_str(), "r");
+  FILE* p = ::popen((command_line + " 2>&1").c_str(), "r");
   if (!p) return r;
   std::array<char, 4096> buf;
   size_t n;
@@ -48,5 +47,7 @@ CommandResult runCli(const std::string& args) {
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
   return r;
 }
+
+CommandResult runCli(const std::string& args) { return runCommand("'" + cliPath().string() + "' " + args); }
 
 }  // namespace nerfslam::test

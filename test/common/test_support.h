@@ -30,6 +30,9 @@ struct CommandResult {
   int exit_code = -1;
   std::string output;  // stdout and stderr interleaved
 };
+// Runs a shell command line and captures its output (stdout and stderr) and exit code
+// (128 + signal when it was killed).
+CommandResult runCommand(const std::string& command_line);
 // Runs `nerfslam <args>` (args as one shell-quoted string) and captures its output and exit code.
 CommandResult runCli(const std::string& args);
 

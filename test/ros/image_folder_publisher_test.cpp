@@ -220,43 +220,30 @@ TEST(GroundTruth, TfAndPathEqualTheDatasetsGroundTruthAtDatasetStamps) {
   }
 }
 
-struct Exit {
-  int status = -1;
-  std::string output;
-};
-
 // Runs the publisher binary against this test's master with the given arguments.
-Exit runPublisher(const std::string& args) {
-  const std::string cmd = "timeout 60 '" NERFSLAM_PUBLISHER_PATH "' " + args + " 2>&1";
-  Exit e;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return e;
-  std::array<char, 4096> buf{};
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) e.output.append(buf.data(), n);
-  const int st = pclose(pipe);
-  e.status = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-  return e;
+nerfslam::test::CommandResult runPublisher(const std::string& args) {
+  return nerfslam::test::runCommand("timeout 60 '" NERFSLAM_PUBLISHER_PATH "' " + args);
 }
 
 TEST(ImageFolderPublisher, MissingDatasetExitsNonZeroNamingThePath) {
-  const Exit e = runPublisher("__name:=bad_dataset_publisher _dataset:=/nonexistent/nerfslam_no_such_dataset");
-  EXPECT_EQ(e.status, 1) << e.output;
+  const nerfslam::test::CommandResult e =
+      runPublisher("__name:=bad_dataset_publisher _dataset:=/nonexistent/nerfslam_no_such_dataset");
+  EXPECT_EQ(e.exit_code, 1) << e.output;
   EXPECT_NE(e.output.find("cannot open dataset"), std::string::npos) << e.output;
   EXPECT_NE(e.output.find("/nonexistent/nerfslam_no_such_dataset"), std::string::npos) << e.output;
 }
 
 TEST(ImageFolderPublisher, BadParametersExitNonZeroNamingTheParameter) {
-  const Exit no_dataset = runPublisher("__name:=no_dataset_publisher");
-  EXPECT_EQ(no_dataset.status, 1) << no_dataset.output;
+  const nerfslam::test::CommandResult no_dataset = runPublisher("__name:=no_dataset_publisher");
+  EXPECT_EQ(no_dataset.exit_code, 1) << no_dataset.output;
   EXPECT_NE(no_dataset.output.find("~dataset is required"), std::string::npos) << no_dataset.output;
 
-  const Exit bad_rate = runPublisher("__name:=bad_rate_publisher _dataset:=/tmp _rate:=-5.0");
-  EXPECT_EQ(bad_rate.status, 1) << bad_rate.output;
+  const nerfslam::test::CommandResult bad_rate = runPublisher("__name:=bad_rate_publisher _dataset:=/tmp _rate:=-5.0");
+  EXPECT_EQ(bad_rate.exit_code, 1) << bad_rate.output;
   EXPECT_NE(bad_rate.output.find("~rate must be >= 0"), std::string::npos) << bad_rate.output;
 
-  const Exit bad_kind = runPublisher("__name:=bad_kind_publisher _dataset:=nosuchkind:/tmp");
-  EXPECT_EQ(bad_kind.status, 1) << bad_kind.output;
+  const nerfslam::test::CommandResult bad_kind = runPublisher("__name:=bad_kind_publisher _dataset:=nosuchkind:/tmp");
+  EXPECT_EQ(bad_kind.exit_code, 1) << bad_kind.output;
   EXPECT_NE(bad_kind.output.find("nosuchkind"), std::string::npos) << bad_kind.output;
 }
 
@@ -276,11 +263,11 @@ TEST(ImageFolderPublisher, UndecodableFrameIsReportedAndSkipped) {
   const auto bad = dir / "frame2.png";
   std::filesystem::resize_file(bad, std::filesystem::file_size(bad) / 2);
 
-  const Exit e = runPublisher(
+  const nerfslam::test::CommandResult e = runPublisher(
       "__name:=corrupt_frame_publisher image:=corrupt/image camera_info:=corrupt/camera_info "
       "_exit_when_done:=true _rate:=50 _dataset:=folder:" +
       dir.path().string());
-  EXPECT_EQ(e.status, 0) << e.output;
+  EXPECT_EQ(e.exit_code, 0) << e.output;
   EXPECT_NE(e.output.find("skipping frame 2"), std::string::npos) << e.output;
   EXPECT_NE(e.output.find("frame2.png"), std::string::npos) << e.output;
   EXPECT_NE(e.output.find("3 frames published in total, 1 skipped"), std::string::npos) << e.output;

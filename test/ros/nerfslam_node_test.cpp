@@ -242,40 +242,27 @@ TEST(NerfslamNode, TracksKittiWithinTheAteThresholdAndSurvivesBadInput) {
   EXPECT_EQ(diagValue(o, "tracking errors"), 0u);
 }
 
-struct Exit {
-  int status = -1;
-  std::string output;
-};
-
 // Runs the node binary against this test's master with the given arguments.
-Exit runNode(const std::string& args) {
-  const std::string cmd = "timeout 60 '" NERFSLAM_NODE_PATH "' " + args + " 2>&1";
-  Exit e;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return e;
-  std::array<char, 4096> buf{};
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) e.output.append(buf.data(), n);
-  const int st = pclose(pipe);
-  e.status = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-  return e;
+nerfslam::test::CommandResult runNode(const std::string& args) {
+  return nerfslam::test::runCommand("timeout 60 '" NERFSLAM_NODE_PATH "' " + args);
 }
 
 TEST(NerfslamNode, InvalidParametersExitNonZeroNamingTheParameter) {
-  const Exit queue = runNode("__name:=bad_queue_node _queue_size:=0");
-  EXPECT_EQ(queue.status, 1) << queue.output;
+  const nerfslam::test::CommandResult queue = runNode("__name:=bad_queue_node _queue_size:=0");
+  EXPECT_EQ(queue.exit_code, 1) << queue.output;
   EXPECT_NE(queue.output.find("~queue_size must be >= 1 (got 0)"), std::string::npos) << queue.output;
 
-  const Exit frames = runNode("__name:=bad_frames_node _map_frame:=same _camera_frame:=same");
-  EXPECT_EQ(frames.status, 1) << frames.output;
+  const nerfslam::test::CommandResult frames = runNode("__name:=bad_frames_node _map_frame:=same _camera_frame:=same");
+  EXPECT_EQ(frames.exit_code, 1) << frames.output;
   EXPECT_NE(frames.output.find("~map_frame and ~camera_frame must differ"), std::string::npos) << frames.output;
 
-  const Exit period = runNode("__name:=bad_period_node _map_points_period:=-1.0");
-  EXPECT_EQ(period.status, 1) << period.output;
+  const nerfslam::test::CommandResult period = runNode("__name:=bad_period_node _map_points_period:=-1.0");
+  EXPECT_EQ(period.exit_code, 1) << period.output;
   EXPECT_NE(period.output.find("~map_points_period must be >= 0"), std::string::npos) << period.output;
 
-  const Exit yaml = runNode("__name:=bad_yaml_node _camera_yaml:=/nonexistent/nerfslam_no_camera.yaml");
-  EXPECT_EQ(yaml.status, 1) << yaml.output;
+  const nerfslam::test::CommandResult yaml =
+      runNode("__name:=bad_yaml_node _camera_yaml:=/nonexistent/nerfslam_no_camera.yaml");
+  EXPECT_EQ(yaml.exit_code, 1) << yaml.output;
   EXPECT_NE(yaml.output.find("/nonexistent/nerfslam_no_camera.yaml"), std::string::npos) << yaml.output;
 }
 
