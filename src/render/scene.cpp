@@ -16,15 +16,16 @@ namespace nerfslam::render {
 namespace fs = std::filesystem;
 using Eigen::Vector3d;
 
-namespace {
-
-uint64_t mix(uint64_t a, uint64_t b) {
-  // splitmix64 of a combination: decorrelated sub-seeds.
-  uint64_t z = a * 0x9E3779B97F4A7C15ull + b + 0x632BE59BD9B4E019ull;
+uint64_t mixSeed(uint64_t a, uint64_t b, uint64_t salt) {
+  uint64_t z = a * 0x9E3779B97F4A7C15ull + b + salt;
   z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
   z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
   return z ^ (z >> 31);
 }
+
+namespace {
+
+uint64_t mix(uint64_t a, uint64_t b) { return mixSeed(a, b, 0x632BE59BD9B4E019ull); }
 
 // Directional "sun" shading baked into vertex colours so faces of a box differ in brightness.
 float shade(const Vector3d& n) {

@@ -10,11 +10,13 @@
 #include <thread>
 
 #include <fmt/format.h>
+
 #include <spdlog/spdlog.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include "nerfslam/render/scene.h"
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
@@ -24,12 +26,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-uint64_t mixSeed(uint64_t a, uint64_t b) {
-  uint64_t z = a * 0x9E3779B97F4A7C15ull + b + 0x2545F4914F6CDD1Dull;
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
+uint64_t synthSeed(uint64_t a, uint64_t b) { return mixSeed(a, b, 0x2545F4914F6CDD1Dull); }
 
 std::string listNames(const std::vector<std::string>& v) {
   std::string s;
@@ -129,7 +126,7 @@ struct SequenceRenderer::Impl {
     uploadScene(scene, renderer);
     render_cam = camera.undistorted();
     if (camera.hasDistortion()) setupDistortion();
-    cv::RNG rng(mixSeed(opts.seed, 777));
+    cv::RNG rng(synthSeed(opts.seed, 777));
     for (double& p : exp_phase) p = rng.uniform(0.0, 2 * M_PI);
   }
 
@@ -205,7 +202,7 @@ SynthFrame SequenceRenderer::render(int i) {
     }
     acc *= I.gain(f.timestamp);
     if (I.opts.noise_sigma > 0 || I.opts.shot_noise > 0) {
-      cv::RNG rng(mixSeed(I.opts.seed, 1000003ull + static_cast<uint64_t>(i)));
+      cv::RNG rng(synthSeed(I.opts.seed, 1000003ull + static_cast<uint64_t>(i)));
       const float s2 = static_cast<float>(I.opts.noise_sigma * I.opts.noise_sigma),
                   k = static_cast<float>(I.opts.shot_noise);
       for (int y = 0; y < acc.rows; ++y) {

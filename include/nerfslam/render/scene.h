@@ -22,6 +22,11 @@
 
 namespace nerfslam::render {
 
+// Decorrelated sub-seed from a seed and a stream id (splitmix64 of a * golden + b + salt). Every
+// seeded generator of the render module derives its stream here; the salt keeps a caller's streams
+// (and so its existing output) distinct from another's.
+uint64_t mixSeed(uint64_t a, uint64_t b, uint64_t salt);
+
 struct SceneOptions {
   std::string name = "room";
   uint64_t seed = 1;
