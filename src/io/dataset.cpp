@@ -185,7 +185,7 @@ std::unique_ptr<Dataset> openDataset(const std::string& kind_in, const fs::path&
   fail("unknown dataset kind '{}' (valid kinds: {})", kind, kindList());
 }
 
-std::unique_ptr<Dataset> openDataset(const std::string& spec, const DatasetOptions& opts) {
+DatasetSpec parseDatasetSpec(const std::string& spec) {
   if (spec.empty()) fail("empty dataset spec; expected [KIND:]PATH with KIND one of: {}", kindList());
   // "kind:PATH" when the part before the first ':' is a lower-case word and the whole spec is not
   // itself an existing path.
@@ -197,10 +197,15 @@ std::unique_ptr<Dataset> openDataset(const std::string& spec, const DatasetOptio
         fail("unknown dataset kind '{}' in '{}' (valid kinds: {})", kind, spec, kindList());
       const std::string path = spec.substr(colon + 1);
       if (path.empty()) fail("dataset spec '{}' has no path after '{}:'", spec, kind);
-      return openDataset(kind, fs::path(path), opts);
+      return {kind, fs::path(path)};
     }
   }
-  return openDataset(std::string(), fs::path(spec), opts);
+  return {std::string(), fs::path(spec)};
+}
+
+std::unique_ptr<Dataset> openDataset(const std::string& spec, const DatasetOptions& opts) {
+  const DatasetSpec parsed = parseDatasetSpec(spec);
+  return openDataset(parsed.kind, parsed.path, opts);
 }
 
 }  // namespace nerfslam

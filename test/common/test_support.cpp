@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
+#include <fstream>
 
 namespace nerfslam::test {
 namespace fs = std::filesystem;
@@ -34,6 +35,12 @@ TempDir::~TempDir() {
   std::error_code ec;
   fs::permissions(path_, fs::perms::owner_all, fs::perm_options::add, ec);
   fs::remove_all(path_, ec);
+}
+
+void writeText(const fs::path& path, const std::string& content) {
+  if (path.has_parent_path()) fs::create_directories(path.parent_path());
+  std::ofstream os(path, std::ios::binary | std::ios::trunc);
+  os << content;
 }
 
 CommandResult runCommand(const std::string& command_line) {

@@ -26,6 +26,9 @@ class TempDir {
   std::filesystem::path path_;
 };
 
+// Writes `content` to `path` (binary, parents created): for building test inputs.
+void writeText(const std::filesystem::path& path, const std::string& content);
+
 struct CommandResult {
   int exit_code = -1;
   std::string output;  // stdout and stderr interleaved
@@ -38,10 +41,14 @@ CommandResult runCli(const std::string& args);
 
 }  // namespace nerfslam::test
 
-// In a TEST body: resolves `sub` under the data dir into `var`, or skips (fails under CI) when absent.
-#define NERFSLAM_REQUIRE_DATA(var, sub)                                                                     \
-  const std::filesystem::path var = ::nerfslam::test::dataDir() / (sub);                                    \
-  if (!std::filesystem::exists(var)) {                                                                      \
-    if (::nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << var;                  \
-    GTEST_SKIP() << "test data not found: " << var << " (set NERFSLAM_DATA_DIR to the shared data folder)"; \
+// In a TEST body: skips (fails under CI, NERFSLAM_REQUIRE_DATA=1) when `path` does not exist.
+#define NERFSLAM_REQUIRE_PATH(path)                                                                            \
+  if (!std::filesystem::exists(path)) {                                                                        \
+    if (::nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << (path);                  \
+    GTEST_SKIP() << "test data not found: " << (path) << " (set NERFSLAM_DATA_DIR to the shared data folder)"; \
   }
+
+// In a TEST body: resolves `sub` under the data dir into `var`, or skips (fails under CI) when absent.
+#define NERFSLAM_REQUIRE_DATA(var, sub)                                  \
+  const std::filesystem::path var = ::nerfslam::test::dataDir() / (sub); \
+  NERFSLAM_REQUIRE_PATH(var)

@@ -12,15 +12,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void writeFile(const fs::path& p, const std::string& text) {
-  std::ofstream out(p);
-  out << text;
-}
-
 // The message of the Error thrown by loading `text` as a camera YAML (empty if it loads).
 std::string loadError(const test::TempDir& dir, const std::string& text, const std::string& name = "cam.yaml") {
   const fs::path p = dir / name;
-  writeFile(p, text);
+  test::writeText(p, text);
   try {
     loadCameraYaml(p);
   } catch (const Error& e) {
@@ -42,7 +37,7 @@ distortion: [0.262383, -0.953104, -0.005358, 0.002628, 1.163314]
 
 TEST(CameraYaml, LoadsOurFormat) {
   test::TempDir dir;
-  writeFile(dir / "cam.yaml", kOurs);
+  test::writeText(dir / "cam.yaml", kOurs);
   const Camera c = loadCameraYaml(dir / "cam.yaml");
   EXPECT_EQ(c.width, 640);
   EXPECT_EQ(c.height, 480);
@@ -56,7 +51,7 @@ TEST(CameraYaml, LoadsOurFormat) {
 
 TEST(CameraYaml, DistortionIsOptional) {
   test::TempDir dir;
-  writeFile(dir / "cam.yaml", "model: pinhole\nwidth: 100\nheight: 50\nfx: 80\nfy: 81\ncx: 49.5\ncy: 24.5\n");
+  test::writeText(dir / "cam.yaml", "model: pinhole\nwidth: 100\nheight: 50\nfx: 80\nfy: 81\ncx: 49.5\ncy: 24.5\n");
   const Camera c = loadCameraYaml(dir / "cam.yaml");
   EXPECT_EQ(c.distortion_model, DistortionModel::kNone);
   EXPECT_TRUE(c.distortion.empty());
@@ -119,7 +114,7 @@ projection_matrix:
 
 TEST(CameraYaml, LoadsRosCameraInfo) {
   test::TempDir dir;
-  writeFile(dir / "ost.yaml", kRosPlumbBob);
+  test::writeText(dir / "ost.yaml", kRosPlumbBob);
   const Camera c = loadCameraYaml(dir / "ost.yaml");
   EXPECT_EQ(c.width, 640);
   EXPECT_EQ(c.height, 480);
@@ -136,7 +131,7 @@ TEST(CameraYaml, RosWithoutCoefficientsIsPinhole) {
   std::string text = kRosPlumbBob;
   const std::string d = "cols: 5\n  data: [0.262383, -0.953104, -0.005358, 0.002628, 1.163314]";
   text.replace(text.find(d), d.size(), "cols: 0\n  data: []");
-  writeFile(dir / "rect.yaml", text);
+  test::writeText(dir / "rect.yaml", text);
   const Camera c = loadCameraYaml(dir / "rect.yaml");
   EXPECT_EQ(c.distortion_model, DistortionModel::kNone);
   EXPECT_TRUE(c.distortion.empty());
@@ -145,7 +140,7 @@ TEST(CameraYaml, RosWithoutCoefficientsIsPinhole) {
 
 TEST(CameraYaml, LoadsRosEquidistant) {
   test::TempDir dir;
-  writeFile(dir / "fisheye.yaml", R"(image_width: 848
+  test::writeText(dir / "fisheye.yaml", R"(image_width: 848
 image_height: 800
 camera_name: t265_fisheye1
 camera_matrix:

@@ -12,12 +12,6 @@ namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
 
-void writeText(const fs::path& p, const std::string& s) {
-  fs::create_directories(p.parent_path());
-  std::ofstream o(p);
-  o << s;
-}
-
 void writeImage(const fs::path& p, cv::Size size = {64, 48}) {
   fs::create_directories(p.parent_path());
   cv::Mat img(size, CV_8UC1);
@@ -62,14 +56,14 @@ TEST(DatasetEuroc, InterpolatedGroundTruthTimesTbs) {
     writeImage(cam / "data" / (n + ".png"));
     csv += n + "," + n + ".png\n";
   }
-  writeText(cam / "data.csv", csv);
-  writeText(cam / "sensor.yaml", kSensorYaml);
+  test::writeText(cam / "data.csv", csv);
+  test::writeText(cam / "sensor.yaml", kSensorYaml);
   // Body moves along x at 1 m/s (x = t - 1 s); samples every 0.03 s from 0.985 s, so every image
   // time falls between two samples.
   std::string gt = "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n";
   for (int k = 0; k < 6; ++k)
     gt += fmt::format("{},{},0,0,1,0,0,0,0,0,0\n", 985000000LL + 30000000LL * k, 0.03 * k - 0.015);
-  writeText(tmp / "mav0" / "state_groundtruth_estimate0" / "data.csv", gt);
+  test::writeText(tmp / "mav0" / "state_groundtruth_estimate0" / "data.csv", gt);
   const auto ds = openDataset(tmp.path().string());
   EXPECT_EQ(ds->kind(), "euroc");
   ASSERT_EQ(ds->size(), 3u);
@@ -90,22 +84,22 @@ TEST(DatasetEuroc, BadSensorYaml) {
   test::TempDir tmp;
   const fs::path cam = tmp / "mav0" / "cam0";
   writeImage(cam / "data" / "1000.png");
-  writeText(cam / "data.csv", "#timestamp [ns],filename\n1000,1000.png\n");
+  test::writeText(cam / "data.csv", "#timestamp [ns],filename\n1000,1000.png\n");
   const std::string yaml = (cam / "sensor.yaml").string();
   std::string s = kSensorYaml;
-  writeText(cam / "sensor.yaml", s.replace(s.find("[50, 51, 31.5, 23.5]"), 20, "[50, 51, 31.5]"));
+  test::writeText(cam / "sensor.yaml", s.replace(s.find("[50, 51, 31.5, 23.5]"), 20, "[50, 51, 31.5]"));
   expectError([&] { openDataset(tmp.path().string()); }, {yaml, "intrinsics", "4"});
   s = kSensorYaml;
-  writeText(cam / "sensor.yaml", s.replace(s.find("equidistant"), 11, "fov"));
+  test::writeText(cam / "sensor.yaml", s.replace(s.find("equidistant"), 11, "fov"));
   expectError([&] { openDataset(tmp.path().string()); }, {yaml, "distortion_model", "fov"});
   s = kSensorYaml;
-  writeText(cam / "sensor.yaml", s.replace(s.find("[0, -1, 0, 0.1"), 14, "[2, -1, 0, 0.1"));
+  test::writeText(cam / "sensor.yaml", s.replace(s.find("[0, -1, 0, 0.1"), 14, "[2, -1, 0, 0.1"));
   expectError([&] { openDataset(tmp.path().string()); }, {yaml, "T_BS"});
   s = kSensorYaml;
-  writeText(cam / "sensor.yaml", s.replace(s.find("[64, 48]"), 8, "[640, 480]"));
+  test::writeText(cam / "sensor.yaml", s.replace(s.find("[64, 48]"), 8, "[640, 480]"));
   expectError([&] { openDataset(tmp.path().string()); }, {yaml, "640x480", "64x48"});
-  writeText(cam / "sensor.yaml", kSensorYaml);
-  writeText(cam / "data.csv", "#timestamp [ns],filename\n1000,1000.png\n900,1000.png\n");
+  test::writeText(cam / "sensor.yaml", kSensorYaml);
+  test::writeText(cam / "data.csv", "#timestamp [ns],filename\n1000,1000.png\n900,1000.png\n");
   expectError([&] { openDataset(tmp.path().string()); }, {(cam / "data.csv").string() + ":3", "timestamp"});
 }
 
@@ -116,16 +110,16 @@ TEST(DatasetMiddlebury, ParFileSubsetAndErrors) {
   writeImage(tmp / "v1.png");
   writeImage(tmp / "v3.png");
   const std::string K = "50 0 31.5 0 51 23.5 0 0 1";
-  writeText(tmp / "obj_par.txt",
-            "3\n"
-            "v1.png " +
-                K +
-                " 1 0 0 0 1 0 0 0 1 0 0 1\n"
-                "v2.png " +
-                K +
-                " 1 0 0 0 1 0 0 0 1 0 0 2\n"
-                "v3.png " +
-                K + " 0 0 -1 0 1 0 1 0 0 0 0 1\n");
+  test::writeText(tmp / "obj_par.txt",
+                  "3\n"
+                  "v1.png " +
+                      K +
+                      " 1 0 0 0 1 0 0 0 1 0 0 1\n"
+                      "v2.png " +
+                      K +
+                      " 1 0 0 0 1 0 0 0 1 0 0 2\n"
+                      "v3.png " +
+                      K + " 0 0 -1 0 1 0 1 0 0 0 0 1\n");
   const auto ds = openDataset(tmp.path().string());
   EXPECT_EQ(ds->kind(), "middlebury");
   ASSERT_EQ(ds->size(), 2u);
@@ -136,11 +130,11 @@ TEST(DatasetMiddlebury, ParFileSubsetAndErrors) {
   EXPECT_NEAR((T.inverse() * Eigen::Vector3d::Zero()).z(), 1.0, 1e-12);
   EXPECT_NEAR(ds->camera().fy, 51, 0);
   const std::string par = (tmp / "obj_par.txt").string();
-  writeText(tmp / "obj_par.txt", "2\nv1.png " + K + " 1 0 0 0 1 0 0 0 1 0 0 1\n");
+  test::writeText(tmp / "obj_par.txt", "2\nv1.png " + K + " 1 0 0 0 1 0 0 0 1 0 0 1\n");
   expectError([&] { openDataset(tmp.path().string()); }, {par + ":1", "count"});
-  writeText(tmp / "obj_par.txt", "1\nv1.png " + K + " 1 0 0 0 1 0 0 0 1 0 x 1\n");
+  test::writeText(tmp / "obj_par.txt", "1\nv1.png " + K + " 1 0 0 0 1 0 0 0 1 0 x 1\n");
   expectError([&] { openDataset(tmp.path().string()); }, {par + ":2", "'x'"});
-  writeText(tmp / "obj_par.txt", "1\nv1.png " + K + " 1 0 0 0 2 0 0 0 1 0 0 1\n");
+  test::writeText(tmp / "obj_par.txt", "1\nv1.png " + K + " 1 0 0 0 2 0 0 0 1 0 0 1\n");
   expectError([&] { openDataset(tmp.path().string()); }, {par + ":2", "rotation"});
 }
 
@@ -149,8 +143,8 @@ TEST(DatasetStrecha, CameraFileAndErrors) {
   writeImage(tmp / "images" / "0000.jpg");
   writeImage(tmp / "images" / "0001.jpg");
   const std::string cam0 = "50 0 31.5\n0 51 23.5\n0 0 1\n0 0 0\n0 0 1\n1 0 0\n0 1 0\n1 2 3\n64 48\n";
-  writeText(tmp / "gt_dense_cameras" / "0000.jpg.camera", cam0);
-  writeText(tmp / "gt_dense_cameras" / "0001.jpg.camera", cam0);
+  test::writeText(tmp / "gt_dense_cameras" / "0000.jpg.camera", cam0);
+  test::writeText(tmp / "gt_dense_cameras" / "0001.jpg.camera", cam0);
   const auto ds = openDataset(tmp.path().string());
   EXPECT_EQ(ds->kind(), "strecha");
   ASSERT_EQ(ds->size(), 2u);
@@ -158,11 +152,11 @@ TEST(DatasetStrecha, CameraFileAndErrors) {
   EXPECT_TRUE(ds->groundTruth(0)->rotationMatrix().col(2).isApprox(Eigen::Vector3d(1, 0, 0)));
   EXPECT_TRUE(ds->groundTruth(0)->translation().isApprox(Eigen::Vector3d(1, 2, 3)));
   const std::string f1 = (tmp / "gt_dense_cameras" / "0001.jpg.camera").string();
-  writeText(f1, "50 0 31.5\n0 51 23.5\n0 0 1\n0.1 0 0\n0 0 1\n1 0 0\n0 1 0\n1 2 3\n64 48\n");
+  test::writeText(f1, "50 0 31.5\n0 51 23.5\n0 0 1\n0.1 0 0\n0 0 1\n1 0 0\n0 1 0\n1 2 3\n64 48\n");
   expectError([&] { openDataset(tmp.path().string()); }, {f1 + ":4", "distortion"});
-  writeText(f1, "60 0 31.5\n0 51 23.5\n0 0 1\n0 0 0\n0 0 1\n1 0 0\n0 1 0\n1 2 3\n64 48\n");
+  test::writeText(f1, "60 0 31.5\n0 51 23.5\n0 0 1\n0 0 0\n0 0 1\n1 0 0\n0 1 0\n1 2 3\n64 48\n");
   expectError([&] { openDataset(tmp.path().string()); }, {f1, "intrinsics differ"});
-  writeText(f1, "50 0 31.5\n0 51 23.5\n0 0 1\n");
+  test::writeText(f1, "50 0 31.5\n0 51 23.5\n0 0 1\n");
   expectError([&] { openDataset(tmp.path().string()); }, {f1, "9 lines"});
 }
 
@@ -170,9 +164,9 @@ TEST(DatasetTsukuba, TrajectoryConventionAndErrors) {
   test::TempDir tmp;
   writeImage(tmp / "images" / "rgb_00000.png", {640, 480});
   writeImage(tmp / "images" / "rgb_00001.png", {640, 480});
-  writeText(tmp / "intrinsics.txt", "fx fy cx cy width height\n615 615 320 240 640 480\n");
+  test::writeText(tmp / "intrinsics.txt", "fx fy cx cy width height\n615 615 320 240 640 480\n");
   // Frame 1: 10 cm along stored x; M = rotation of 90 degrees about z.
-  writeText(tmp / "cam_traj_truth.txt", "0 0 0 1 0 0 0 1 0 0 0 1\n10 0 0 0 -1 0 1 0 0 0 0 1\n");
+  test::writeText(tmp / "cam_traj_truth.txt", "0 0 0 1 0 0 0 1 0 0 0 1\n10 0 0 0 -1 0 1 0 0 0 0 1\n");
   const auto ds = openDataset(tmp.path().string());
   EXPECT_EQ(ds->kind(), "tsukuba");
   EXPECT_TRUE(ds->groundTruth(0)->isApprox(SE3(), 1e-12));
@@ -183,9 +177,9 @@ TEST(DatasetTsukuba, TrajectoryConventionAndErrors) {
   EXPECT_TRUE(ds->groundTruth(1)->rotationMatrix().isApprox(S * M * S));
   EXPECT_NEAR(ds->timestamp(1), 1.0 / 30, 1e-15);
   const std::string traj = (tmp / "cam_traj_truth.txt").string();
-  writeText(tmp / "cam_traj_truth.txt", "0 0 0 1 0 0 0 1 0 0 0 1\n");
+  test::writeText(tmp / "cam_traj_truth.txt", "0 0 0 1 0 0 0 1 0 0 0 1\n");
   expectError([&] { openDataset(tmp.path().string()); }, {traj, "1 poses for 2 images"});
-  writeText(tmp / "cam_traj_truth.txt", "0 0 0 1 0 0 0 1 0 0 0 1\n0 0 0 1 0 0 0 1\n");
+  test::writeText(tmp / "cam_traj_truth.txt", "0 0 0 1 0 0 0 1 0 0 0 1\n0 0 0 1 0 0 0 1\n");
   expectError([&] { openDataset(tmp.path().string()); }, {traj + ":2", "12 numbers"});
 }
 

@@ -12,12 +12,6 @@ namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
 
-void writeText(const fs::path& p, const std::string& s) {
-  fs::create_directories(p.parent_path());
-  std::ofstream o(p);
-  o << s;
-}
-
 // A textured image whose pixel (0,0) encodes `id`, so tests can tell frames apart.
 void writeImage(const fs::path& p, int id, cv::Size size = {64, 48}) {
   fs::create_directories(p.parent_path());
@@ -47,7 +41,7 @@ TEST(DatasetFolder, NaturalOrderTimesAndCamera) {
   test::TempDir tmp;
   const fs::path dir = tmp / "seq";
   for (int i : {10, 2, 1, 33}) writeImage(dir / ("img" + std::to_string(i) + ".png"), i);
-  writeText(dir / "times.txt", "# t\n0.5\n0.6\n0.75\n1.0\n");
+  test::writeText(dir / "times.txt", "# t\n0.5\n0.6\n0.75\n1.0\n");
   writeCamera(dir / "camera.yaml");
   const auto ds = openDataset(dir.string());
   EXPECT_EQ(ds->kind(), "folder");
@@ -84,9 +78,9 @@ TEST(DatasetFolder, FpsAndOverride) {
   const auto ds = openDataset("folder:" + tmp.path().string(), o);
   EXPECT_DOUBLE_EQ(ds->timestamp(2), 0.2);
   // times.txt (preferred over fps) with the wrong count, then a bad number.
-  writeText(tmp / "times.txt", "0\n1\n");
+  test::writeText(tmp / "times.txt", "0\n1\n");
   expectError([&] { openDataset(tmp.path().string(), o); }, {(tmp / "times.txt").string(), "2 timestamps for 3"});
-  writeText(tmp / "times.txt", "0\n1\nabc\n");
+  test::writeText(tmp / "times.txt", "0\n1\nabc\n");
   expectError([&] { openDataset(tmp.path().string(), o); }, {(tmp / "times.txt").string() + ":3", "'abc'"});
   fs::remove(tmp / "times.txt");
   // Without any camera.
@@ -103,15 +97,15 @@ TEST(DatasetTum, AssociationCameraYamlAndPreset) {
     writeImage(dir / name, i, {640, 480});
     rgb += fmt::format("{:.6f} {}\n", 1000.0 + 0.1 * i, name);
   }
-  writeText(dir / "rgb.txt", rgb);
+  test::writeText(dir / "rgb.txt", rgb);
   // Ground truth at 0.005 s after frames 0, 1, 2 and 0.05 s after frame 4 (too far): frame 3 and 4
   // get none.
-  writeText(dir / "groundtruth.txt",
-            "# ground truth\n"
-            "1000.005 1 2 3 0 0 0 1\n"
-            "1000.105 1.1 2 3 0 0 0 1\n"
-            "1000.195 1.2 2 3 0 0 0.7071068 0.7071068\n"
-            "1000.450 9 9 9 0 0 0 1\n");
+  test::writeText(dir / "groundtruth.txt",
+                  "# ground truth\n"
+                  "1000.005 1 2 3 0 0 0 1\n"
+                  "1000.105 1.1 2 3 0 0 0 1\n"
+                  "1000.195 1.2 2 3 0 0 0.7071068 0.7071068\n"
+                  "1000.450 9 9 9 0 0 0 1\n");
   const auto ds = openDataset(dir.string());
   EXPECT_EQ(ds->kind(), "tum");
   ASSERT_EQ(ds->size(), 5u);
@@ -131,7 +125,7 @@ TEST(DatasetTum, AssociationCameraYamlAndPreset) {
   const fs::path other = tmp / "mine";
   fs::create_directories(other);
   fs::copy(dir / "rgb", other / "rgb");
-  writeText(other / "rgb.txt", rgb);
+  test::writeText(other / "rgb.txt", rgb);
   expectError([&] { openDataset(other.string()); }, {other.string(), "--camera"});
 }
 
@@ -140,15 +134,15 @@ TEST(DatasetTum, MissingImageAndNonMonotonic) {
   writeImage(tmp / "rgb/a.png", 0);
   writeImage(tmp / "rgb/b.png", 1);
   writeCamera(tmp / "camera.yaml");
-  writeText(tmp / "rgb.txt", "# x\n1.0 rgb/a.png\n2.0 rgb/missing.png\n");
+  test::writeText(tmp / "rgb.txt", "# x\n1.0 rgb/a.png\n2.0 rgb/missing.png\n");
   const std::string rgb = (tmp / "rgb.txt").string();
   expectError([&] { openDataset(tmp.path().string()); }, {rgb + ":3", "missing.png", "not found"});
-  writeText(tmp / "rgb.txt", "1.0 rgb/a.png\n0.5 rgb/b.png\n");
+  test::writeText(tmp / "rgb.txt", "1.0 rgb/a.png\n0.5 rgb/b.png\n");
   expectError([&] { openDataset(tmp.path().string()); }, {rgb + ":2", "timestamp"});
-  writeText(tmp / "rgb.txt", "1.0 rgb/a.png\n2.0 rgb/b.png\n");
-  writeText(tmp / "groundtruth.txt", "1.0 0 0 0 0 0 0 1\n0.9 0 0 0 0 0 0 1\n");
+  test::writeText(tmp / "rgb.txt", "1.0 rgb/a.png\n2.0 rgb/b.png\n");
+  test::writeText(tmp / "groundtruth.txt", "1.0 0 0 0 0 0 0 1\n0.9 0 0 0 0 0 0 1\n");
   expectError([&] { openDataset(tmp.path().string()); }, {(tmp / "groundtruth.txt").string(), "line 2"});
-  writeText(tmp / "groundtruth.txt", "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n");
+  test::writeText(tmp / "groundtruth.txt", "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n");
   EXPECT_EQ(openDataset(tmp.path().string())->size(), 2u);
 }
 
@@ -176,7 +170,7 @@ TEST(DatasetBadInput, UnknownKind) {
 TEST(DatasetBadInput, TruncatedImageMidSequence) {
   test::TempDir tmp;
   for (int i = 0; i < 3; ++i) writeImage(tmp / fmt::format("{:03d}.png", i), i);
-  writeText(tmp / "times.txt", "0\n1\n2\n");
+  test::writeText(tmp / "times.txt", "0\n1\n2\n");
   writeCamera(tmp / "camera.yaml");
   // Cut frame 1 in half.
   const fs::path bad = tmp / "001.png";
@@ -185,13 +179,13 @@ TEST(DatasetBadInput, TruncatedImageMidSequence) {
     std::ifstream in(bad, std::ios::binary);
     bytes.assign(std::istreambuf_iterator<char>(in), {});
   }
-  writeText(bad, bytes.substr(0, bytes.size() / 2));
+  test::writeText(bad, bytes.substr(0, bytes.size() / 2));
   const auto ds = openDataset(tmp.path().string());  // opening reads only the first frame
   EXPECT_EQ(ds->load(0).image.at<uchar>(0, 0), 0);
   expectError([&] { ds->load(1); }, {bad.string(), "truncated"});
   EXPECT_EQ(ds->load(2).image.at<uchar>(0, 0), 2);
   // A truncated first frame fails at open time.
-  writeText(tmp / "000.png", bytes.substr(0, 100));
+  test::writeText(tmp / "000.png", bytes.substr(0, 100));
   expectError([&] { openDataset(tmp.path().string()); }, {(tmp / "000.png").string()});
 }
 
@@ -199,7 +193,7 @@ TEST(DatasetBadInput, SizeChangeMidSequence) {
   test::TempDir tmp;
   writeImage(tmp / "a1.png", 0);
   writeImage(tmp / "a2.png", 1, {80, 48});
-  writeText(tmp / "times.txt", "0\n1\n");
+  test::writeText(tmp / "times.txt", "0\n1\n");
   writeCamera(tmp / "camera.yaml");
   const auto ds = openDataset(tmp.path().string());
   expectError([&] { ds->load(1); }, {(tmp / "a2.png").string(), "frame 1", "80x48", "64x48"});
@@ -208,7 +202,7 @@ TEST(DatasetBadInput, SizeChangeMidSequence) {
 TEST(DatasetBadInput, CameraOverrideSizeMismatch) {
   test::TempDir tmp;
   writeImage(tmp / "a1.png", 0);
-  writeText(tmp / "times.txt", "0\n");
+  test::writeText(tmp / "times.txt", "0\n");
   writeCamera(tmp / "wrong.yaml", 640, 480);
   DatasetOptions o;
   o.camera_override = tmp / "wrong.yaml";
@@ -219,21 +213,22 @@ TEST(DatasetKitti, LayoutAndErrors) {
   test::TempDir tmp;
   const fs::path seq = tmp / "sequences" / "07";
   for (int i = 0; i < 3; ++i) writeImage(seq / "image_0" / fmt::format("{:06d}.png", i), i);
-  writeText(seq / "times.txt", "0.0\n0.1\n0.2\n");
-  writeText(seq / "calib.txt", "P0: 50 0 31.5 0 0 51 23.5 0 0 0 1 0\nP1: 50 0 31.5 -20 0 51 23.5 0 0 0 1 0\n");
+  test::writeText(seq / "times.txt", "0.0\n0.1\n0.2\n");
+  test::writeText(seq / "calib.txt", "P0: 50 0 31.5 0 0 51 23.5 0 0 0 1 0\nP1: 50 0 31.5 -20 0 51 23.5 0 0 0 1 0\n");
   // Official layout: dataset/poses/07.txt next to dataset/sequences/.
-  writeText(tmp / "poses" / "07.txt", "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1 1\n1 0 0 0.5 0 1 0 0 0 0 1 2\n");
+  test::writeText(tmp / "poses" / "07.txt",
+                  "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1 1\n1 0 0 0.5 0 1 0 0 0 0 1 2\n");
   const auto ds = openDataset(seq.string());
   EXPECT_EQ(ds->kind(), "kitti");
   ASSERT_EQ(ds->size(), 3u);
   EXPECT_EQ(ds->camera().fy, 51);
   EXPECT_TRUE(ds->groundTruth(2)->translation().isApprox(Eigen::Vector3d(0.5, 0, 2)));
-  writeText(seq / "times.txt", "0.0\n0.1\n0.1\n");
+  test::writeText(seq / "times.txt", "0.0\n0.1\n0.1\n");
   expectError([&] { openDataset(seq.string()); }, {(seq / "times.txt").string() + ":3"});
-  writeText(seq / "times.txt", "0.0\n0.1\n0.2\n0.3\n");
+  test::writeText(seq / "times.txt", "0.0\n0.1\n0.2\n0.3\n");
   expectError([&] { openDataset(seq.string()); }, {(seq / "times.txt").string() + ":4", "000003"});
-  writeText(seq / "times.txt", "0.0\n0.1\n0.2\n");
-  writeText(seq / "calib.txt", "P1: 1 2 3\n");
+  test::writeText(seq / "times.txt", "0.0\n0.1\n0.2\n");
+  test::writeText(seq / "calib.txt", "P1: 1 2 3\n");
   expectError([&] { openDataset(seq.string()); }, {(seq / "calib.txt").string(), "P0"});
 }
 
@@ -241,7 +236,7 @@ TEST(DatasetTransforms, IntrinsicsDistortionAndErrors) {
   test::TempDir tmp;
   writeImage(tmp / "images" / "0.png", 0);
   writeImage(tmp / "images" / "1.png", 1);
-  writeText(tmp / "transforms.json", R"({
+  test::writeText(tmp / "transforms.json", R"({
     "fl_x": 60, "fl_y": 61, "cx": 32, "cy": 24, "w": 64, "h": 48, "k1": 0.1, "k2": -0.01, "p1": 0.001, "p2": 0,
     "aabb_scale": 16,
     "frames": [
@@ -261,11 +256,11 @@ TEST(DatasetTransforms, IntrinsicsDistortionAndErrors) {
   EXPECT_TRUE(R.col(1).isApprox(Eigen::Vector3d(0, -1, 0)));
   EXPECT_DOUBLE_EQ(ds->timestamp(1), 1.0 / 30);
   const std::string json = (tmp / "transforms.json").string();
-  writeText(tmp / "transforms.json", R"({"camera_angle_x": 1.0, "frames": [{"file_path": "images/7"}]})");
+  test::writeText(tmp / "transforms.json", R"({"camera_angle_x": 1.0, "frames": [{"file_path": "images/7"}]})");
   expectError([&] { openDataset(tmp.path().string()); }, {json, "frames[0].file_path", "not found"});
-  writeText(tmp / "transforms.json", R"({"camera_angle_x": 1.0, "frames": [{"file_path": "images/0"}]})");
+  test::writeText(tmp / "transforms.json", R"({"camera_angle_x": 1.0, "frames": [{"file_path": "images/0"}]})");
   expectError([&] { openDataset(tmp.path().string()); }, {json, "frames[0].transform_matrix"});
-  writeText(tmp / "transforms.json", R"({"camera_angle_x": 1.0, "frames": [)");
+  test::writeText(tmp / "transforms.json", R"({"camera_angle_x": 1.0, "frames": [)");
   expectError([&] { openDataset(tmp.path().string()); }, {json, "JSON"});
 }
 

@@ -15,12 +15,6 @@ namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
 
-void writeText(const fs::path& p, const std::string& s) {
-  fs::create_directories(p.parent_path());
-  std::ofstream o(p, std::ios::binary);
-  o << s;
-}
-
 // Expects openDataset to throw a nerfslam::Error whose message contains every needle; any other
 // exception type is a failure (it would escape the CLI's error handling).
 void expectDatasetError(const std::string& kind, const fs::path& root, std::initializer_list<std::string> needles) {
@@ -40,8 +34,8 @@ fs::path eurocWithSensor(const test::TempDir& dir, const std::string& sensor_yam
   const fs::path cam0 = dir / "mav0/cam0";
   fs::create_directories(cam0 / "data");
   EXPECT_TRUE(cv::imwrite((cam0 / "data/1403715273262142976.png").string(), cv::Mat(480, 752, CV_8UC1, cv::Scalar(9))));
-  writeText(cam0 / "data.csv", "#timestamp [ns],filename\n1403715273262142976,1403715273262142976.png\n");
-  writeText(cam0 / "sensor.yaml", sensor_yaml);
+  test::writeText(cam0 / "data.csv", "#timestamp [ns],filename\n1403715273262142976,1403715273262142976.png\n");
+  test::writeText(cam0 / "sensor.yaml", sensor_yaml);
   return dir.path();
 }
 
@@ -81,8 +75,8 @@ fs::path strechaWithCameras(const test::TempDir& dir, const std::string& cam0, c
     fs::create_directories(dir / "images");
     EXPECT_TRUE(cv::imwrite((dir / "images" / n).string(), cv::Mat(512, 768, CV_8UC3, cv::Scalar(9, 9, 9))));
   }
-  writeText(dir / "gt_dense_cameras/0000.jpg.camera", cam0);
-  writeText(dir / "gt_dense_cameras/0001.jpg.camera", cam1);
+  test::writeText(dir / "gt_dense_cameras/0000.jpg.camera", cam0);
+  test::writeText(dir / "gt_dense_cameras/0001.jpg.camera", cam1);
   return dir.path();
 }
 

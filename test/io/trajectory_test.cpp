@@ -14,11 +14,6 @@ namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
 
-void writeText(const fs::path& p, const std::string& s) {
-  std::ofstream os(p, std::ios::binary);
-  os << s;
-}
-
 std::string slurp(const fs::path& p) {
   std::ifstream is(p, std::ios::binary);
   std::stringstream ss;
@@ -87,13 +82,13 @@ TEST(Trajectory, KittiRoundTripWithAndWithoutTimes) {
 
 TEST(Trajectory, TolerantSeparatorsCommentsAndBlankLines) {
   test::TempDir tmp;
-  writeText(tmp / "a.txt",
-            "# timestamp tx ty tz qx qy qz qw\r\n"
-            "\n"
-            "1.5 1 2 3 0 0 0 1\r\n"
-            "   # indented comment\n"
-            "2.5,\t4,5 ,6, 0,0,0.7071067811865476,0.7071067811865476\n"
-            "3.5\t7\t8\t9\t0\t0\t0\t-1\n");
+  test::writeText(tmp / "a.txt",
+                  "# timestamp tx ty tz qx qy qz qw\r\n"
+                  "\n"
+                  "1.5 1 2 3 0 0 0 1\r\n"
+                  "   # indented comment\n"
+                  "2.5,\t4,5 ,6, 0,0,0.7071067811865476,0.7071067811865476\n"
+                  "3.5\t7\t8\t9\t0\t0\t0\t-1\n");
   const Trajectory t = readTrajectory(tmp / "a.txt", TrajectoryFormat::kAuto);
   ASSERT_EQ(t.size(), 3u);
   EXPECT_EQ(t[0].timestamp, 1.5);
@@ -104,7 +99,7 @@ TEST(Trajectory, TolerantSeparatorsCommentsAndBlankLines) {
 
 TEST(Trajectory, SlightlyNonUnitQuaternionIsNormalised) {
   test::TempDir tmp;
-  writeText(tmp / "a.txt", "0 0 0 0 0 0 0 1.0004\n");
+  test::writeText(tmp / "a.txt", "0 0 0 0 0 0 0 1.0004\n");
   const Trajectory t = readTumTrajectory(tmp / "a.txt");
   EXPECT_NEAR(t[0].pose.rotation().norm(), 1.0, 1e-15);
 }
@@ -126,7 +121,7 @@ TEST(Trajectory, ErrorsNameFileAndLine) {
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     const fs::path p = tmp / ("bad" + std::to_string(i) + ".txt");
-    writeText(p, cases[i].text);
+    test::writeText(p, cases[i].text);
     std::vector<std::string> parts = cases[i].parts;
     parts.push_back(p.string());
     try {
@@ -138,28 +133,28 @@ TEST(Trajectory, ErrorsNameFileAndLine) {
   }
   const fs::path missing = tmp / "missing.txt";
   expectError([&] { readTrajectory(missing); }, {missing.string(), "cannot open"});
-  writeText(tmp / "empty.txt", "# only a comment\n\n");
+  test::writeText(tmp / "empty.txt", "# only a comment\n\n");
   expectError([&] { readTumTrajectory(tmp / "empty.txt"); }, {"empty.txt", "no poses"});
   expectError([&] { readTrajectory(tmp / "empty.txt"); }, {"empty.txt", "no poses"});
-  writeText(tmp / "five.txt", "1 2 3 4 5\n");
+  test::writeText(tmp / "five.txt", "1 2 3 4 5\n");
   expectError([&] { readTrajectory(tmp / "five.txt"); }, {"five.txt:1:", "cannot detect"});
   expectError([&] { parseTrajectoryFormat("csv"); }, {"csv", "tum", "kitti"});
 }
 
 TEST(Trajectory, KittiErrors) {
   test::TempDir tmp;
-  writeText(tmp / "k.txt",
-            "1 0 0 0 0 1 0 0 0 0 1 0\n"
-            "2 0 0 0 0 1 0 0 0 0 1 0\n");
+  test::writeText(tmp / "k.txt",
+                  "1 0 0 0 0 1 0 0 0 0 1 0\n"
+                  "2 0 0 0 0 1 0 0 0 0 1 0\n");
   expectError([&] { readKittiTrajectory(tmp / "k.txt"); }, {"k.txt:2:", "not a rotation matrix"});
-  writeText(tmp / "m.txt",
-            "1 0 0 0 0 1 0 0 0 0 -1 0\n");  // det -1: a reflection
+  test::writeText(tmp / "m.txt",
+                  "1 0 0 0 0 1 0 0 0 0 -1 0\n");  // det -1: a reflection
   expectError([&] { readKittiTrajectory(tmp / "m.txt"); }, {"m.txt:1:", "not a rotation matrix"});
-  writeText(tmp / "ok.txt", "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1 0\n");
-  writeText(tmp / "times.txt", "0.0\n");
+  test::writeText(tmp / "ok.txt", "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1 0\n");
+  test::writeText(tmp / "times.txt", "0.0\n");
   expectError([&] { readKittiTrajectory(tmp / "ok.txt", tmp / "times.txt"); },
               {"times.txt", "1 timestamps", "2 poses"});
-  writeText(tmp / "short.txt", "1 0 0 0 0 1 0 0 0 0 1\n");
+  test::writeText(tmp / "short.txt", "1 0 0 0 0 1 0 0 0 0 1\n");
   expectError([&] { readKittiTrajectory(tmp / "short.txt"); }, {"short.txt:1:", "expected 12 columns", "found 11"});
 }
 

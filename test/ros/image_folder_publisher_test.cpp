@@ -38,13 +38,6 @@ struct Received {
   std::vector<sensor_msgs::CameraInfoConstPtr> infos;
 };
 
-// "[kind:]PATH" -> PATH
-std::filesystem::path specPath(const std::string& spec) {
-  const auto colon = spec.find(':');
-  if (colon != std::string::npos && spec.find('/') > colon) return spec.substr(colon + 1);
-  return spec;
-}
-
 TEST(ImageFolderPublisher, PublishesTheDatasetWithMatchingCameraInfoAtTheRequestedRate) {
   ros::NodeHandle nh;
   ros::NodeHandle pnh("~");
@@ -58,11 +51,8 @@ TEST(ImageFolderPublisher, PublishesTheDatasetWithMatchingCameraInfoAtTheRequest
   ASSERT_TRUE(pnh.getParam("frame_id", frame_id));
   ASSERT_GT(rate, 0.0);
   ASSERT_GT(frames, 1);
-  const std::filesystem::path root = specPath(spec);
-  if (!std::filesystem::exists(root)) {
-    if (nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << root;
-    GTEST_SKIP() << "test data not found: " << root << " (set NERFSLAM_DATA_DIR to the shared data folder)";
-  }
+  const std::filesystem::path root = nerfslam::parseDatasetSpec(spec).path;
+  NERFSLAM_REQUIRE_PATH(root)
   nerfslam::DatasetOptions opts;
   opts.start = static_cast<size_t>(start);
   opts.max_frames = static_cast<size_t>(frames);
@@ -153,11 +143,8 @@ TEST(GroundTruth, TfAndPathEqualTheDatasetsGroundTruthAtDatasetStamps) {
   ASSERT_TRUE(pnh.getParam("start", start));
   ASSERT_TRUE(pnh.getParam("gt_parent_frame", parent));
   ASSERT_TRUE(pnh.getParam("gt_child_frame", child));
-  const std::filesystem::path root = specPath(spec);
-  if (!std::filesystem::exists(root)) {
-    if (nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << root;
-    GTEST_SKIP() << "test data not found: " << root << " (set NERFSLAM_DATA_DIR to the shared data folder)";
-  }
+  const std::filesystem::path root = nerfslam::parseDatasetSpec(spec).path;
+  NERFSLAM_REQUIRE_PATH(root)
   nerfslam::DatasetOptions opts;
   opts.start = static_cast<size_t>(start);
   opts.max_frames = static_cast<size_t>(frames);

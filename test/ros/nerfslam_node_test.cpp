@@ -32,12 +32,6 @@
 
 namespace {
 
-std::filesystem::path specPath(const std::string& spec) {
-  const auto colon = spec.find(':');
-  if (colon != std::string::npos && spec.find('/') > colon) return spec.substr(colon + 1);
-  return spec;
-}
-
 struct Observed {
   std::mutex mutex;
   nav_msgs::PathConstPtr path;
@@ -77,11 +71,8 @@ TEST(NerfslamNode, TracksKittiWithinTheAteThresholdAndSurvivesBadInput) {
   ASSERT_TRUE(pnh.getParam("camera_frame", camera_frame));
   ASSERT_TRUE(pnh.getParam("max_ate_percent", max_ate_percent));
   ASSERT_TRUE(pnh.getParam("max_tf_ate_percent", max_tf_ate_percent));
-  const std::filesystem::path root = specPath(spec);
-  if (!std::filesystem::exists(root)) {
-    if (nerfslam::test::dataRequired()) FAIL() << "required test data missing: " << root;
-    GTEST_SKIP() << "test data not found: " << root << " (set NERFSLAM_DATA_DIR to the shared data folder)";
-  }
+  const std::filesystem::path root = nerfslam::parseDatasetSpec(spec).path;
+  NERFSLAM_REQUIRE_PATH(root)
   nerfslam::DatasetOptions opts;
   opts.start = static_cast<size_t>(start);
   opts.max_frames = static_cast<size_t>(frames);

@@ -107,6 +107,15 @@ struct DatasetOptions {
 // All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba.
 const std::vector<std::string>& datasetKinds();
 
+// "[kind:]PATH" split into its parts; `kind` is empty when the spec names none (then the layout
+// decides). A spec that is itself an existing path is a path, even with a ':' in it. Throws an Error
+// for an unknown kind or a missing path.
+struct DatasetSpec {
+  std::string kind;
+  std::filesystem::path path;
+};
+DatasetSpec parseDatasetSpec(const std::string& spec);
+
 // spec is "[kind:]PATH"; the kind is detected from the layout when omitted. Throws
 // nerfslam::Error for an unknown kind (listing the valid ones), a missing path or a bad layout.
 std::unique_ptr<Dataset> openDataset(const std::string& spec, const DatasetOptions& opts = {});
