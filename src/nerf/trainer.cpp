@@ -130,55 +130,106 @@ struct Trainer::ThreadState {
   RadianceField::Gradients grads;
   std::vector<float> pos, fpos, dir, t, dt, sigma, rgb, d_sigma, d_rgb;
   struct RayInfo {
-    int offset, count;
+    int offset, count, view;
     float target[3], bg[3];
   };
   std::vector<RayInfo> rays;
   double loss = 0;
+  std::vector<double> view_loss;  // per view: summed loss of this step's rays
+  std::vector<int> view_rays;
   StageTimes times;
 };
 
-Trainer::Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options)
-    : model_(model), views_(std::move(views)), opt_(options) {
-  if (views_.empty()) fail("NeRF training: no training views");
-  if (opt_.threads < 1) fail("NeRF training: threads must be >= 1");
-  images_.reserve(views_.size());
-  for (size_t i = 0; i < views_.size(); ++i) {
-    validateView(views_[i], fmt::format("training view {}", i));
-    const cv::Mat& im = views_[i].image;
-    ImageData d;
-    d.width = im.cols;
-    d.height = im.rows;
-    d.has_alpha = im.channels() == 4;
-    cv::Mat u8;
-    if (im.depth() == CV_32F)
-      im.convertTo(u8, CV_8U, 255.0);
-    else
-      u8 = im;
-    if (u8.channels() == 3) {
-      cv::Mat a(u8.size(), CV_8UC1, cv::Scalar(255));
-      cv::Mat out;
-      cv::merge(std::vector<cv::Mat>{u8, a}, out);
-      u8 = out;
-    }
-    d.rgba.resize(size_t(d.width) * d.height * 4);
-    for (int y = 0; y < d.height; ++y)
-      std::memcpy(d.rgba.data() + size_t(y) * d.width * 4, u8.ptr(y), size_t(d.width) * 4);
-    images_.push_back(std::move(d));
-    views_[i].image.release();  // keep only the compact copy
+Trainer::ImageData Trainer::toImageData(const cv::Mat& im) {
+  ImageData d;
+  d.width = im.cols;
+  d.height = im.rows;
+  d.has_alpha = im.channels() == 4;
+  cv::Mat u8;
+  if (im.depth() == CV_32F)
+    im.convertTo(u8, CV_8U, 255.0);
+  else
+    u8 = im;
+  if (u8.channels() == 3) {
+    cv::Mat a(u8.size(), CV_8UC1, cv::Scalar(255));
+    cv::Mat out;
+    cv::merge(std::vector<cv::Mat>{u8, a}, out);
+    u8 = out;
   }
-  for (int i = 0; i < opt_.threads; ++i) {
+  d.rgba.resize(size_t(d.width) * d.height * 4);
+  for (int y = 0; y < d.height; ++y)
+    std::memcpy(d.rgba.data() + size_t(y) * d.width * 4, u8.ptr(y), size_t(d.width) * 4);
+  return d;
+}
+
+Trainer::Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options)
+    : model_(model), opt_(options) {
+  if (views.empty()) fail("NeRF training: no training views");
+  if (opt_.threads < 1) fail("NeRF training: threads must be >= 1");
+  views_.reserve(views.size());
+  images_.reserve(views.size());
+  for (auto& v : views) addView(std::move(v));
+  setThreads(opt_.threads);
+  snapshot();
+}
+
+void Trainer::setThreads(int n) {
+  if (n < 1) fail("NeRF training: threads must be >= 1");
+  opt_.threads = n;
+  threads_.resize(size_t(std::min<int>(n, int(threads_.size()))));
+  for (int i = int(threads_.size()); i < n; ++i) {
     auto ts = std::make_unique<ThreadState>();
-    std::seed_seq seq{uint64_t(opt_.seed), uint64_t(i), uint64_t(0x6e657266)};
-    ts->rng.seed(seq);
+    if (step_ == 0) {
+      std::seed_seq seq{uint64_t(opt_.seed), uint64_t(i), uint64_t(0x6e657266)};
+      ts->rng.seed(seq);
+    } else {
+      std::seed_seq seq{uint64_t(opt_.seed), uint64_t(i), uint64_t(0x6e657266), uint64_t(step_)};
+      ts->rng.seed(seq);
+    }
     ts->ws = model_.field->makeWorkspace();
     ts->grads = model_.field->makeGradients();
     threads_.push_back(std::move(ts));
   }
-  snapshot();
 }
 
 Trainer::~Trainer() = default;
+
+size_t Trainer::addView(TrainingView view) {
+  validateView(view, fmt::format("training view {}", views_.size()));
+  images_.push_back(toImageData(view.image));
+  view.image.release();  // keep only the compact copy
+  views_.push_back(std::move(view));
+  view_loss_.push_back(-1.0);
+  if (!view_weights_.empty()) view_weights_.push_back(1.0);
+  return views_.size() - 1;
+}
+
+TrainingView Trainer::view(size_t i) const {
+  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
+  TrainingView v = views_[i];
+  const ImageData& d = images_[i];
+  v.image = cv::Mat(d.height, d.width, CV_8UC4, const_cast<uint8_t*>(d.rgba.data())).clone();
+  return v;
+}
+
+void Trainer::setViewPose(size_t i, const SE3& T_world_cam) {
+  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
+  if (!T_world_cam.matrix().allFinite()) throw fieldError(fmt::format("training view {}", i), "T_world_cam", "is not finite");
+  views_[i].T_world_cam = T_world_cam;
+}
+
+void Trainer::setViewWeights(std::vector<double> w) {
+  if (!w.empty()) {
+    if (w.size() != views_.size()) fail("NeRF training: {} view weights for {} views", w.size(), views_.size());
+    double sum = 0;
+    for (double x : w) {
+      if (!(x >= 0) || !std::isfinite(x)) fail("NeRF training: view weights must be finite and >= 0");
+      sum += x;
+    }
+    if (!(sum > 0)) fail("NeRF training: view weights are all zero");
+  }
+  view_weights_ = std::move(w);
+}
 
 double Trainer::learningRate() const {
   double lr = opt_.lr;
@@ -205,11 +256,16 @@ void Trainer::updateGrid() {
   const int64_t total = int64_t(model_.grid->cascades()) * OccupancyGrid::kCells;
   if (step_ == 0) {
     p.uniform_cells = -1;  // every cell once: the grid starts from a full, untested occupancy
-  } else if (step_ < opt_.grid_warmup_steps) {
-    p.uniform_cells = total / 4;  // instant-ngp's post-warm-up share, uniform only
   } else {
-    p.uniform_cells = int64_t(double(total) * opt_.grid_update_fraction);
-    p.occupied_cells = p.uniform_cells;
+    // Grid queries stay proportional to the training samples: the shares below are for 2^16 samples
+    // per step; smaller steps (online training) sample proportionally fewer cells.
+    const double per_step = std::min(1.0, double(opt_.samples_per_step) / double(1 << 16));
+    if (step_ < opt_.grid_warmup_steps) {
+      p.uniform_cells = std::max<int64_t>(1, int64_t(double(total) / 4 * per_step));  // instant-ngp's share, uniform
+    } else {
+      p.uniform_cells = std::max<int64_t>(1, int64_t(double(total) * opt_.grid_update_fraction * per_step));
+      p.occupied_cells = p.uniform_cells;
+    }
   }
   p.decay = float(opt_.grid_decay);
   p.threshold_cap = float(opt_.grid_threshold);
@@ -266,11 +322,15 @@ StepStats Trainer::step() {
     for (auto* v : {&ts.pos, &ts.dir, &ts.fpos, &ts.rgb, &ts.d_rgb}) v->resize(3 * cap);
     for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
     std::uniform_real_distribution<float> u01(0.f, 1.f);
-    std::uniform_int_distribution<size_t> pick_view(0, views_.size() - 1);
+    std::uniform_int_distribution<size_t> pick_uniform(0, views_.size() - 1);
+    std::discrete_distribution<size_t> pick_weighted;
+    if (!view_weights_.empty()) pick_weighted = std::discrete_distribution<size_t>(view_weights_.begin(), view_weights_.end());
+    ts.view_loss.assign(views_.size(), 0.0);
+    ts.view_rays.assign(views_.size(), 0);
     auto t0 = Clock::now();
     int used = 0;
     for (int attempts = 0; used < budget && attempts < budget; ++attempts) {
-      const size_t vi = pick_view(ts.rng);
+      const size_t vi = view_weights_.empty() ? pick_uniform(ts.rng) : pick_weighted(ts.rng);
       const ImageData& im = images_[vi];
       const int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
       const int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
@@ -288,6 +348,7 @@ StepStats Trainer::step() {
       ThreadState::RayInfo ri;
       ri.offset = used;
       ri.count = n;
+      ri.view = int(vi);
       const uint8_t* px_rgba = im.rgba.data() + (size_t(py) * im.width + px) * 4;
       const float a = px_rgba[3] / 255.f;
       for (int c = 0; c < 3; ++c) {
@@ -315,7 +376,10 @@ StepStats Trainer::step() {
       const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o,
                                                  ts.t.data() + o, ri.bg);
       float d_color[3];
-      ts.loss += huberLoss3(r.rgb, ri.target, delta, d_color);
+      const double ray_loss = huberLoss3(r.rgb, ri.target, delta, d_color);
+      ts.loss += ray_loss;
+      ts.view_loss[size_t(ri.view)] += ray_loss;
+      ++ts.view_rays[size_t(ri.view)];
       compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o, ri.bg,
                         r, d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
     }
@@ -334,6 +398,18 @@ StepStats Trainer::step() {
   }
   stats.rays = rays;
   stats.samples = samples;
+  if (std::isfinite(loss))
+    for (size_t v = 0; v < views_.size(); ++v) {
+      double sum = 0;
+      int n = 0;
+      for (const auto& ts : threads_) {
+        sum += ts->view_loss[v];
+        n += ts->view_rays[v];
+      }
+      if (n == 0) continue;
+      const double mean = sum / n;
+      view_loss_[v] = view_loss_[v] < 0 ? mean : 0.5 * view_loss_[v] + 0.5 * mean;
+    }
   stats.loss = rays > 0 ? loss / double(rays) : 0.0;
   if (!std::isfinite(loss)) {
     spdlog::warn("NeRF training diverged at step {} (loss {}); rolling back to the snapshot of step {}", step_, loss,

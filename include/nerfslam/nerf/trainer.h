@@ -73,6 +73,27 @@ class Trainer {
   // Forces one occupancy-grid update now (with warm-up semantics when still in warm-up).
   void updateGrid();
 
+  // Online training (the SLAM NeRF thread): views are added and re-posed between steps, from the
+  // thread that calls step().
+  // Validates and adds a view; returns its index.
+  size_t addView(TrainingView view);
+  size_t numViews() const { return views_.size(); }
+  // Changes the number of training threads (e.g. more once tracking has finished). Deterministic
+  // for a seed and the same sequence of thread counts.
+  void setThreads(int n);
+  const Camera& viewCamera(size_t i) const { return views_.at(i).camera; }
+  const SE3& viewPose(size_t i) const { return views_.at(i).T_world_cam; }
+  // View i as given (image rebuilt as 8-bit RGBA from the trainer's compact copy).
+  TrainingView view(size_t i) const;
+  // Throws nerfslam::Error for an unknown index or a non-finite pose.
+  void setViewPose(size_t i, const SE3& T_world_cam);
+  // Relative probability of drawing each view's rays (one finite weight >= 0 per view, not all
+  // zero); empty: uniform. Views added later get weight 1 until the next call.
+  void setViewWeights(std::vector<double> weights);
+  // Per view: the mean Huber loss per ray of the last step that drew rays from it (exponentially
+  // smoothed over steps, factor 0.5), or -1 before any ray was drawn from it.
+  const std::vector<double>& viewLoss() const { return view_loss_; }
+
  private:
   struct ThreadState;
   struct ImageData {
@@ -81,11 +102,14 @@ class Trainer {
     bool has_alpha;
   };
   void rollback();
+  static ImageData toImageData(const cv::Mat& image);
   void densityBatch(const float* xyz, int n, float* sigma);
 
   NerfModel& model_;
   std::vector<TrainingView> views_;
   std::vector<ImageData> images_;
+  std::vector<double> view_weights_;  // empty: uniform
+  std::vector<double> view_loss_;
   TrainOptions opt_;
   std::vector<std::unique_ptr<ThreadState>> threads_;
   int64_t step_ = 0;
