@@ -2,6 +2,7 @@
 #include <memory>
 
 #include "command.h"
+#include "nerfslam/core/error.h"
 #include "nerfslam/system/runner.h"
 
 namespace {
@@ -13,6 +14,12 @@ struct RunArgs {
   std::string out;
   std::size_t max_frames = 0;
   bool realtime = false;
+  bool no_nerf = false;
+  int demo_frames = 300;
+  std::string map;  // saved maps (include/nerfslam/system/map_store.h)
+  bool localize = false;
+  bool extend = false;
+  std::string save_map;
 };
 
 nerfslam::cli::Registrar reg(
@@ -20,14 +27,27 @@ nerfslam::cli::Registrar reg(
     [](CLI::App& sub) -> nerfslam::cli::Runner {
       auto a = std::make_shared<RunArgs>();
       sub.add_option("--dataset", a->dataset,
-                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba)")
-          ->required();
+                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba); "
+                     "without it: the demo on a synthetic room rendered into OUT/sequence");
+      sub.add_option("--demo-frames", a->demo_frames, "Frames of the demo sequence (without --dataset)")
+          ->check(CLI::Range(30, 100000));
       sub.add_option("--camera", a->camera, "Camera YAML replacing the dataset's calibration");
       sub.add_option("--config", a->config, "Options YAML (see `nerfslam options`)");
       sub.add_option("--out", a->out, "Output directory")->required();
       sub.add_option("--max-frames", a->max_frames, "Use at most N frames (0: all)");
       sub.add_flag("--realtime", a->realtime,
                    "Play frames at their timestamps, dropping what tracking can't keep up with");
+      sub.add_flag("--no-nerf", a->no_nerf, "Sparse SLAM only: no NeRF mapping thread");
+      auto* map_opt = sub.add_option("--map", a->map,
+                                     "Start from this saved map folder (with --localize or --extend; its options are "
+                                     "used unless --config is given; its camera must be the dataset's)");
+      auto* loc = sub.add_flag("--localize", a->localize,
+                               "With --map: relocalise in the map, then track against it without changing it");
+      auto* ext = sub.add_flag("--extend", a->extend, "With --map: relocalise in the map, then continue mapping");
+      loc->needs(map_opt)->excludes(ext);
+      ext->needs(map_opt);
+      sub.add_option("--save-map", a->save_map,
+                     "Save the map folder here at the end (default: OUT/map, except after --localize)");
       return [a]() -> int {
         nerfslam::RunOptions o;
         o.dataset = a->dataset;
@@ -36,6 +56,14 @@ nerfslam::cli::Registrar reg(
         o.out = a->out;
         o.max_frames = a->max_frames;
         o.realtime = a->realtime;
+        o.nerf = !a->no_nerf;
+        o.demo_frames = a->demo_frames;
+        if (!a->map.empty()) {
+          if (!a->localize && !a->extend) throw nerfslam::Error("run: --map needs --localize or --extend");
+          o.map = a->map;
+          o.map_mode = a->localize ? nerfslam::MapMode::kLocalize : nerfslam::MapMode::kExtend;
+        }
+        if (!a->save_map.empty()) o.save_map = a->save_map;
         const nerfslam::RunResult r = nerfslam::runSlam(o);
         return r.exit_code;
       };

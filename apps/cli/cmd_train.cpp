@@ -15,6 +15,7 @@
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/nerf/renderer.h"
@@ -39,14 +40,6 @@ struct TrainArgs {
   int curve_views = 3;
   int samples_per_step = 1 << 16;
 };
-
-double peakRssMb() {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // kB
-  return 0.0;
-}
 
 struct Split {
   std::vector<nerf::TrainingView> train, test;

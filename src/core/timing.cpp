@@ -1,6 +1,8 @@
 #include "nerfslam/core/timing.h"
 
 #include <ctime>
+#include <fstream>
+#include <string>
 
 #include <algorithm>
 #include <cmath>
@@ -88,6 +90,14 @@ std::string TimingStats::summary() const {
   const double mean = std::accumulate(s.begin(), s.end(), 0.0) / static_cast<double>(s.size());
   return fmt::format("n={} mean={:.3f} median={:.3f} p99={:.3f} max={:.3f} ms", s.size(), mean, nearestRank(s, 50),
                      nearestRank(s, 99), *std::max_element(s.begin(), s.end()));
+}
+
+double peakRssMb() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // kB
+  return 0.0;
 }
 
 double threadCpuMs() {

@@ -320,6 +320,63 @@ void Map::clear() {
   bump();
 }
 
+std::pair<std::vector<Keyframe>, std::vector<MapPoint>> Map::snapshot() const {
+  auto lock = lockShared(mutex_);
+  std::pair<std::vector<Keyframe>, std::vector<MapPoint>> out;
+  out.first.reserve(keyframes_.size());
+  for (const auto& [id, kf] : keyframes_) out.first.push_back(kf);
+  out.second.reserve(points_.size());
+  for (const auto& [id, p] : points_) out.second.push_back(p);
+  std::sort(out.second.begin(), out.second.end(), [](const MapPoint& a, const MapPoint& b) { return a.id < b.id; });
+  return out;
+}
+
+void Map::restore(std::vector<Keyframe> keyframes, std::vector<MapPoint> points) {
+  std::map<KeyframeId, Keyframe> kfs;
+  std::unordered_map<PointId, MapPoint> pts;
+  KeyframeId next_kf = 0;
+  PointId next_point = 0;
+  for (Keyframe& kf : keyframes) {
+    if (!kf.frame) fail("Map::restore: keyframe {} without a frame", kf.id);
+    if (kf.id < 0) fail("Map::restore: keyframe id {} < 0", kf.id);
+    if (kf.points.size() != kf.frame->keypoints.size())
+      fail("Map::restore: keyframe {}: {} point slots for {} keypoints", kf.id, kf.points.size(),
+           kf.frame->keypoints.size());
+    next_kf = std::max(next_kf, kf.id + 1);
+    const KeyframeId id = kf.id;
+    if (!kfs.emplace(id, std::move(kf)).second) fail("Map::restore: keyframe id {} twice", id);
+  }
+  for (MapPoint& p : points) {
+    if (p.id < 0) fail("Map::restore: point id {} < 0", p.id);
+    for (const auto& [kid, idx] : p.observations) {
+      auto it = kfs.find(kid);
+      if (it == kfs.end()) fail("Map::restore: point {} observed by unknown keyframe {}", p.id, kid);
+      if (idx < 0 || idx >= static_cast<int>(it->second.points.size()) || it->second.points[idx] != p.id)
+        fail("Map::restore: point {}: keyframe {} keypoint {} does not name it", p.id, kid, idx);
+    }
+    next_point = std::max(next_point, p.id + 1);
+    const PointId id = p.id;
+    if (!pts.emplace(id, std::move(p)).second) fail("Map::restore: point id {} twice", id);
+  }
+  for (const auto& [kid, kf] : kfs)
+    for (size_t i = 0; i < kf.points.size(); ++i) {
+      const PointId pid = kf.points[i];
+      if (pid == kNoPoint) continue;
+      auto it = pts.find(pid);
+      if (it == pts.end()) fail("Map::restore: keyframe {} keypoint {} names unknown point {}", kid, i, pid);
+      auto oit = it->second.observations.find(kid);
+      if (oit == it->second.observations.end() || oit->second != static_cast<int>(i))
+        fail("Map::restore: keyframe {} keypoint {} names point {}, which does not list it", kid, i, pid);
+    }
+  auto lock = lockExclusive(mutex_);
+  keyframes_ = std::move(kfs);
+  points_ = std::move(pts);
+  retired_.clear();
+  next_kf_ = std::max(next_kf_, next_kf);
+  next_point_ = std::max(next_point_, next_point);
+  bump();
+}
+
 std::optional<SE3> Map::resolvePose(KeyframeId id) const {
   auto lock = lockShared(mutex_);
   SE3 T_chain;  // T_parent_..._id accumulated

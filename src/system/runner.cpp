@@ -9,15 +9,20 @@
 #include <mutex>
 #include <thread>
 
+#include <opencv2/imgproc.hpp>
 #include <spdlog/spdlog.h>
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/timing.h"
 #include "nerfslam/core/options_yaml.h"
 #include "nerfslam/eval/trajectory_metrics.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/mapping/bounded_queue.h"
+#include "nerfslam/system/map_store.h"
+#include "nerfslam/render/synth.h"
+#include "nerfslam/system/run_outputs.h"
 
 namespace nerfslam {
 namespace {
@@ -68,23 +73,47 @@ void writeMapPly(const std::filesystem::path& path, const Map& map) {
 
 RunResult runSlam(const RunOptions& ro) {
   if (ro.out.empty()) fail("run: --out is required");
+  if (ro.map.has_value() != (ro.map_mode != MapMode::kSlam))
+    fail("run: --map needs --localize or --extend, and those need --map");
   SystemOptions sys;
   if (ro.system) {
     sys = *ro.system;
   } else if (ro.config) {
     loadOptionsFile(*ro.config, sys);
+  } else if (ro.map) {
+    sys = loadMapOptions(*ro.map);  // the options the map was made with
   }
+  if (!ro.nerf) sys.nerf.enabled = false;
   validateOptions(sys, ro.config ? ro.config->string() : std::string("options"));
+  std::string dataset_spec = ro.dataset;
+  if (dataset_spec.empty()) {
+    // The demo: no data needed, no display.
+    render::SynthOptions so;
+    so.scene = "room";
+    so.trajectory = "handheld";
+    so.frames = ro.demo_frames;
+    const std::filesystem::path seq = ro.out / "sequence";
+    std::fprintf(stderr, "no --dataset: rendering the synthetic furnished room (%d frames, 640x480, OSMesa) into %s\n",
+                 so.frames, seq.string().c_str());
+    render::writeSynthSequence(so, seq);
+    dataset_spec = "tum:" + seq.string();
+  }
   DatasetOptions dopt;
   dopt.camera_override = ro.camera;
   dopt.max_frames = ro.max_frames;
-  auto ds = openDataset(ro.dataset, dopt);
+  auto ds = openDataset(dataset_spec, dopt);
   ensureDirectory(ro.out);
   const Camera& camera = ds->camera();
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
   spdlog::info("options:\n{}", printOptions(sys));
 
-  SlamSystem slam(camera, sys);
+  // A saved map to start from (map_store.h): verified, and refused when made with another camera.
+  LoadedMap loaded;
+  if (ro.map) loaded = loadMapFolder(*ro.map, camera);
+  const std::size_t loaded_keyframes = loaded.map ? loaded.map->numKeyframes() : 0;
+  const std::size_t loaded_points = loaded.map ? loaded.map->numPoints() : 0;
+  SlamSystem slam(camera, sys, std::move(loaded.map), ro.map_mode);
+  if (loaded.nerf_model && slam.nerf()) slam.nerf()->resume(*loaded.nerf_model, ro.map_mode != MapMode::kLocalize);
   BoundedQueue<InputFrame> frames(static_cast<std::size_t>(sys.frame_queue),
                                   ro.realtime ? OverflowPolicy::kDropOldest : OverflowPolicy::kDropNewest);
   std::atomic<std::size_t> processed{0};
@@ -104,7 +133,8 @@ RunResult runSlam(const RunOptions& ro) {
     for (std::size_t i = 0; i < ds->size() && !abort_run; ++i) {
       InputFrame f;
       try {
-        DatasetFrame df = ds->load(i, ImageMode::kGray);
+        // Colour for the NeRF (tracking converts to grey itself).
+        DatasetFrame df = ds->load(i, sys.nerf.enabled ? ImageMode::kColor : ImageMode::kGray);
         f.index = i;
         f.timestamp = df.timestamp;
         f.image = std::move(df.image);
@@ -120,7 +150,13 @@ RunResult runSlam(const RunOptions& ro) {
         continue;
       }
       last_ts = f.timestamp;
-      image_problems[i] = describeImageProblem(f.image);
+      if (f.image.channels() == 1) {
+        image_problems[i] = describeImageProblem(f.image);
+      } else {
+        cv::Mat grey;
+        cv::cvtColor(f.image, grey, cv::COLOR_BGR2GRAY);
+        image_problems[i] = describeImageProblem(grey);
+      }
       if (i == 0) t_first = f.timestamp;
       if (ro.realtime) {
         const auto due =
@@ -163,9 +199,15 @@ RunResult runSlam(const RunOptions& ro) {
       if (ro.progress && (Clock::now() - last_print > std::chrono::seconds(1))) {
         last_print = Clock::now();
         const double secs = std::chrono::duration<double>(Clock::now() - run0).count();
-        std::fprintf(stderr, "frame %zu/%zu  %.1f frames/s  keyframes %zu  map points %zu  %s\n", f->index + 1,
+        std::string nerf_line;
+        if (const NerfMapping* n = slam.nerf()) {
+          const NerfMappingStats ns = n->stats();
+          nerf_line = fmt::format("  | NeRF {} views, {} steps, {:.1f} steps/s, {:.2f} M samples/s, PSNR {:.1f} dB",
+                                  ns.views, ns.steps, ns.steps_per_second, ns.samples_per_second / 1e6, ns.psnr_recent);
+        }
+        std::fprintf(stderr, "frame %zu/%zu  %.1f frames/s  keyframes %zu  map points %zu  %s%s\n", f->index + 1,
                      ds->size(), processed.load() / std::max(secs, 1e-9), slam.map().numKeyframes(),
-                     slam.map().numPoints(), toString(slam.state()));
+                     slam.map().numPoints(), toString(slam.state()), nerf_line.c_str());
       }
     }
   });
@@ -173,6 +215,13 @@ RunResult runSlam(const RunOptions& ro) {
   tracker.join();
   const double wall_s = std::chrono::duration<double>(Clock::now() - run0).count();
   slam.finish(true);
+  if (NerfMapping* n = slam.nerf(); n && n->hasModel() && sys.nerf.final_train_seconds > 0) {
+    std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n",
+                 sys.nerf.final_train_seconds);
+    const int threads = sys.nerf.final_threads > 0 ? sys.nerf.final_threads
+                                                   : std::max(1, int(std::thread::hardware_concurrency()));
+    n->trainFor(sys.nerf.final_train_seconds, 0, threads);
+  }
 
   // Outputs.
   const Trajectory traj = slam.trajectory();
@@ -189,14 +238,25 @@ RunResult runSlam(const RunOptions& ro) {
   rep["initializations"] = slam.initializationCount();
   rep["initialization_model"] = slam.initializationModel();
   rep["relocalizations"] = slam.relocalizations();
+  rep["mode"] = toString(slam.mapMode());
+  rep["map_loaded"] = ro.map ? nlohmann::json(ro.map->string()) : nlohmann::json(nullptr);
+  rep["relocalized_at_frame"] = slam.relocalizedAtFrame();
+  if (ro.map) {
+    rep["map_loaded_keyframes"] = loaded_keyframes;
+    rep["map_loaded_points"] = loaded_points;
+    rep["map_load_s"] = loaded.seconds;
+  }
   rep["keyframes"] = slam.map().numKeyframes();
   rep["keyframes_dropped"] = slam.droppedKeyframes();
   rep["map_points"] = slam.map().numPoints();
   rep["realtime"] = ro.realtime;
   rep["wall_time_s"] = wall_s;
+  rep["peak_rss_mb"] = peakRssMb();
   rep["frames_per_second"] = processed.load() / std::max(wall_s, 1e-9);
   rep["tracking_ms_median"] = percentile(tracking_ms, 0.5);
   rep["tracking_ms_p99"] = percentile(tracking_ms, 0.99);
+  rep["nerf"] = slam.nerf() != nullptr;
+  if (slam.nerf()) rep["tracking_ms_median_with_nerf"] = percentile(tracking_ms, 0.5);
   std::vector<double> ba_ms, map_ms;
   for (const auto& s : slam.mapping().stats()) {
     ba_ms.push_back(s.ba_ms);
@@ -235,8 +295,9 @@ RunResult runSlam(const RunOptions& ro) {
   }
   if (!failure.empty()) rep["failure"] = failure;
 
+  Trajectory ref;
+  std::optional<Sim3> gt_alignment;
   if (ds->hasGroundTruth() && traj.size() >= 3) {
-    Trajectory ref;
     for (std::size_t i = 0; i < ds->size(); ++i)
       if (auto gt = ds->groundTruth(i)) ref.push_back({ds->timestamp(i), *gt});
     try {
@@ -244,6 +305,7 @@ RunResult runSlam(const RunOptions& ro) {
       eo.align = "sim3";
       eo.max_dt = 1e-3;
       const eval::TrajectoryReport tr = eval::evaluateTrajectory(ref, traj, eo);
+      gt_alignment = tr.alignment;
       rep["ate_rmse_m"] = tr.ape.rmse;
       rep["ate_max_m"] = tr.ape.max;
       rep["ate_scale"] = tr.scale;
@@ -267,6 +329,38 @@ RunResult runSlam(const RunOptions& ro) {
   writeTumTrajectory(ro.out / "trajectory.txt", traj);
   writeTumTrajectory(ro.out / "keyframes.txt", slam.keyframeTrajectory());
   writeMapPly(ro.out / "map_points.ply", slam.map());
+  render::PreviewCloud dense;
+  if (slam.nerf()) {
+    try {
+      writeNerfOutputs(slam, *ds, traj, gt_alignment, ro.out, NerfEvalOptions{}, rep, &dense);
+    } catch (const std::exception& e) {
+      rep["nerf_error"] = e.what();
+      spdlog::error("NeRF outputs: {}", e.what());
+    }
+  }
+  writeRunPreviews(slam, traj, ref, gt_alignment, dense, ro.out);
+  // The map folder (map_store.h): --save-map DIR, else OUT/map (not after --localize: the map is as loaded).
+  bool map_save_failed = false;
+  std::optional<std::filesystem::path> map_dir = ro.save_map;
+  if (!map_dir && ro.save_default_map && ro.map_mode != MapMode::kLocalize) map_dir = ro.out / "map";
+  if (map_dir && slam.map().numKeyframes() > 0) {
+    // The NeRF model goes into the map folder too (written under the model lock).
+    NerfModelWriter write_nerf_model;
+    if (NerfMapping* n = slam.nerf(); n && n->hasModel())
+      write_nerf_model = [n](const std::filesystem::path& p) {
+        n->withModel([&](nerf::NerfModel& m) { nerf::saveModel(m, p); });
+      };
+    try {
+      const MapSaveResult ms = saveMapFolder(*map_dir, slam.map(), camera, sys, write_nerf_model);
+      rep["map_saved"] = map_dir->string();
+      rep["map_save_s"] = ms.seconds;
+      rep["map_bytes"] = ms.bytes;
+    } catch (const std::exception& e) {
+      rep["map_save_error"] = e.what();
+      spdlog::error("saving the map: {}", e.what());
+      map_save_failed = ro.save_map.has_value();
+    }
+  }
   writeStringAtomic(ro.out / "report.json", rep.dump(2) + "\n");
 
   std::fprintf(stderr, "done: %zu/%zu frames tracked, %zu keyframes, %zu map points, %.1f frames/s%s\n", traj.size(),
@@ -276,10 +370,21 @@ RunResult runSlam(const RunOptions& ro) {
     std::fprintf(stderr, "ATE (Sim3) %.4f m = %.3f%% of %.1f m path, scale %.4f\n", rep["ate_rmse_m"].get<double>(),
                  rep["ate_percent_of_path"].get<double>(), rep["path_length_m"].get<double>(),
                  rep["ate_scale"].get<double>());
+  if (rep.contains("nerf_psnr_heldout"))
+    std::fprintf(stderr, "NeRF: %lld steps, held-out PSNR %.2f dB (%zu frames), keyframes %.2f dB%s\n",
+                 static_cast<long long>(rep["nerf_steps"].get<int64_t>()), rep["nerf_psnr_heldout"].get<double>(),
+                 rep["nerf_psnr_heldout_frames"].get<size_t>(), rep["nerf_psnr_keyframes"].get<double>(),
+                 rep.contains("nerf_depth_median_abs_rel")
+                     ? fmt::format(", depth error (median abs rel) {:.1f}%",
+                                   100 * rep["nerf_depth_median_abs_rel"].get<double>())
+                           .c_str()
+                     : "");
+  std::fprintf(stderr, "results in %s (report.json, trajectory.txt, map_preview.png%s)\n", ro.out.string().c_str(),
+               slam.nerf() ? ", nerf/, nerf_cloud.ply, mesh.ply" : "");
   RunResult res;
   res.report = rep;
   res.initialized = slam.initialized();
-  res.exit_code = (!read_failure.empty() || !tracking_failure.empty()) ? 1 : 0;
+  res.exit_code = (!read_failure.empty() || !tracking_failure.empty() || map_save_failed) ? 1 : 0;
   return res;
 }
 

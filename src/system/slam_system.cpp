@@ -8,6 +8,7 @@
 #include <spdlog/spdlog.h>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/system/map_store.h"
 #include "nerfslam/tracking/initializer.h"
 #include "nerfslam/tracking/relocalizer.h"
 #include "nerfslam/tracking/tracker.h"
@@ -26,16 +27,47 @@ const char* toString(TrackingState s) {
   return "?";
 }
 
-SlamSystem::SlamSystem(const Camera& camera, SystemOptions options) : camera_(camera), opt_(std::move(options)) {
+const char* toString(MapMode m) {
+  switch (m) {
+    case MapMode::kSlam:
+      return "slam";
+    case MapMode::kLocalize:
+      return "localize";
+    case MapMode::kExtend:
+      return "extend";
+  }
+  return "?";
+}
+
+SlamSystem::SlamSystem(const Camera& camera, SystemOptions options)
+    : SlamSystem(camera, std::move(options), nullptr, MapMode::kSlam) {}
+
+SlamSystem::SlamSystem(const Camera& camera, SystemOptions options, std::unique_ptr<Map> map, MapMode mode)
+    : camera_(camera), opt_(std::move(options)) {
   camera_.validate("camera");
   map_ = std::make_unique<Map>(camera_);
+  if (map && mode != MapMode::kSlam) {  // a saved map (map_store.h): lost until relocalised in it
+    if (map->numKeyframes() == 0) fail("SlamSystem: the map to {} has no keyframes", toString(mode));
+    if (map->camera().width != camera_.width || map->camera().height != camera_.height)
+      fail("SlamSystem: the map's camera is {}x{}, the images are {}x{}", map->camera().width, map->camera().height,
+           camera_.width, camera_.height);
+    map_ = std::move(map);
+    map_mode_ = mode;
+    state_ = TrackingState::kLost;
+    initialized_once_ = true;
+  }
   mapping_ = std::make_unique<MappingThread>(*map_, opt_.mapping, static_cast<std::size_t>(opt_.keyframe_queue));
   initializer_ = std::make_unique<Initializer>(opt_.tracking.initializer);
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
+  if (opt_.nerf.enabled) nerf_ = std::make_unique<NerfMapping>(*map_, mapping_->bus(), opt_.nerf);
   mapping_->start();
+  if (nerf_) nerf_->start();
 }
 
-SlamSystem::~SlamSystem() { mapping_->stop(); }
+SlamSystem::~SlamSystem() {
+  mapping_->stop();
+  if (nerf_) nerf_->stop();
+}
 
 void SlamSystem::reset() {
   mapping_->waitIdle();
@@ -234,11 +266,17 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   if (res.quality == TrackingQuality::kLost) {
     // Relocalisation against the most recent keyframes.
     std::vector<RelocalizationCandidate> cands;
-    const auto ids = map_->keyframeIds();
-    for (auto it = ids.rbegin(); it != ids.rend() && static_cast<int>(cands.size()) < opt_.relocalization_candidates;
-         ++it) {
+    auto ids = map_->keyframeIds();
+    int max_candidates = opt_.relocalization_candidates;
+    if (map_mode_ != MapMode::kSlam) {  // a loaded map: the camera may be anywhere in it, best-voted keyframes first
+      const auto voted = keyframesByDescriptorVotes(*map_, *frame, opt_.relocalization_candidates);
+      ids.insert(ids.end(), voted.rbegin(), voted.rend());
+      max_candidates += static_cast<int>(voted.size());
+    }
+    for (auto it = ids.rbegin(); it != ids.rend() && static_cast<int>(cands.size()) < max_candidates; ++it) {
       const auto kf = map_->keyframe(*it);
-      if (!kf) continue;
+      if (!kf || std::any_of(cands.begin(), cands.end(), [&](const auto& c) { return c.keyframe_id == uint64_t(*it); }))
+        continue;
       RelocalizationCandidate c;
       c.keyframe_id = static_cast<uint64_t>(*it);
       c.T_world_cam = kf->T_world_cam;
@@ -263,6 +301,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
       res = tracker_->track(*frame, local_points_, &rl.T_world_cam);
       if (res.quality != TrackingQuality::kLost) {
         ++relocalizations_;
+        if (map_mode_ != MapMode::kSlam && relocalized_at_frame_ < 0) relocalized_at_frame_ = int64_t(index);
         spdlog::info("frame {}: relocalised against keyframe {} ({} inliers)", index, rl.keyframe_id, res.num_inliers);
       }
     } else {
@@ -274,7 +313,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   if (res.quality == TrackingQuality::kLost) {
     if (state_ != TrackingState::kLost) spdlog::warn("frame {}: tracking lost ({})", index, rec.message);
     state_ = TrackingState::kLost;
-    if (static_cast<int>(map_->numKeyframes()) <= opt_.reset_if_lost_with_keyframes) {
+    if (static_cast<int>(map_->numKeyframes()) <= opt_.reset_if_lost_with_keyframes && map_mode_ == MapMode::kSlam) {
       spdlog::warn("frame {}: lost with {} keyframes, reinitialising", index, map_->numKeyframes());
       reset();
       rec.message += " (map reset)";
@@ -284,7 +323,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   state_ = TrackingState::kTracking;
   last_matches_ = res.matches;
   // Statistics for point culling: visible = projects into the image, found = inlier match.
-  {
+  if (map_mode_ != MapMode::kLocalize) {
     std::vector<PointId> visible, found;
     const SE3 T_cw = res.T_world_cam.inverse();
     for (const auto& p : local_points_) {
@@ -324,7 +363,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   }
   in.mapping_idle = mapping_->idle();
   const KeyframeDecision d = decideKeyframe(in, opt_.tracking.keyframes);
-  if (d.insert) {
+  if (d.insert && map_mode_ != MapMode::kLocalize) {  // localisation never adds to the map
     KeyframeInsertion k;
     k.frame = cframe;
     k.T_world_cam = res.T_world_cam;
@@ -344,11 +383,13 @@ void SlamSystem::finish(bool global_ba) {
   if (finished_) return;
   finished_ = true;
   mapping_->stop();
-  if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0) {
+  if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0 &&
+      map_mode_ != MapMode::kLocalize) {
     const BaResult r = mapping_->mapper().globalBundleAdjustment(opt_.mapping.global_ba_iterations);
     spdlog::info("global BA: {} keyframes, {} points, rmse {:.2f} -> {:.2f} px, {} outliers, {:.0f} ms",
                  map_->numKeyframes(), map_->numPoints(), r.initial_rmse_px, r.final_rmse_px, r.outliers, r.time_ms);
   }
+  if (nerf_) nerf_->stop();  // takes the last keyframes and the globally adjusted poses
 }
 
 Trajectory SlamSystem::trajectory() const {

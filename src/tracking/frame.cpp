@@ -158,11 +158,13 @@ Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOpti
 
   auto t0 = threadCpuMs();
   cv::Mat grey;
-  if (image.channels() == 3)
+  if (image.channels() == 3) {
     cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
-  else if (image.channels() == 4)
+    if (image.depth() == CV_8U) f.colour = image;
+  } else if (image.channels() == 4) {
     cv::cvtColor(image, grey, cv::COLOR_BGRA2GRAY);
-  else
+    if (image.depth() == CV_8U) cv::cvtColor(image, f.colour, cv::COLOR_BGRA2BGR);
+  } else
     grey = image;
   if (grey.depth() != CV_8U) {
     cv::Mat g8;

@@ -53,7 +53,9 @@ struct PassResult {
 };
 
 PassResult runPass(const Dataset& ds, const std::vector<cv::Mat>& images, bool concurrent) {
-  SlamSystem slam(ds.camera(), SystemOptions{});
+  SystemOptions sys;
+  sys.nerf.enabled = false;  // sparse SLAM only; bench_nerf_slam_latency measures tracking beside the NeRF
+  SlamSystem slam(ds.camera(), sys);
   PassResult r;
   Map::resetThreadLockWait();
   const double p0 = processCpuMs(), t0cpu = threadCpuMs();

@@ -27,7 +27,7 @@ nlohmann::json readReport(const std::filesystem::path& dir) {
 TEST(RunSystem, Kitti06First51TracksEveryFrameAccurately) {
   NERFSLAM_REQUIRE_DATA(data, "kitti06_first51");
   test::TempDir out;
-  const auto r = test::runCli("run --dataset kitti:" + data.string() + " --out " + out.path().string());
+  const auto r = test::runCli("run --no-nerf --dataset kitti:" + data.string() + " --out " + out.path().string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(out.path());
   EXPECT_TRUE(rep.at("initialized").get<bool>());
@@ -52,7 +52,7 @@ TEST(RunSystem, Kitti06First51TracksEveryFrameAccurately) {
 TEST(RunSystem, NewTsukubaFirst75) {
   NERFSLAM_REQUIRE_DATA(data, "new_tsukuba_150");
   test::TempDir out;
-  const auto r = test::runCli("run --dataset tsukuba:" + data.string() + " --max-frames " +
+  const auto r = test::runCli("run --no-nerf --dataset tsukuba:" + data.string() + " --max-frames " +
                               std::to_string(TSUKUBA_FRAMES) + " --out " + out.path().string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(out.path());
@@ -65,7 +65,7 @@ TEST(RunSystem, NewTsukubaFirst75) {
 TEST(RunSystem, EurocStaticPieceDoesNotInitialise) {
   NERFSLAM_REQUIRE_DATA(data, "euroc_V1_01_piece");
   test::TempDir out;
-  const auto r = test::runCli("run --dataset euroc:" + data.string() + " --out " + out.path().string());
+  const auto r = test::runCli("run --no-nerf --dataset euroc:" + data.string() + " --out " + out.path().string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(out.path());
   EXPECT_FALSE(rep.at("initialized").get<bool>());
@@ -99,7 +99,7 @@ TEST(RunSystem, BlackFramesReportFailureWithoutInventingMotion) {
   test::TempDir dir;
   const auto images = makeFolder(dir, 6, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(0)); });
   const auto out = dir / "out";
-  const auto r = test::runCli("run --dataset folder:" + images.string() + " --camera " +
+  const auto r = test::runCli("run --no-nerf --dataset folder:" + images.string() + " --camera " +
                               (dir / "camera.yaml").string() + " --out " + out.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(out);
@@ -112,7 +112,7 @@ TEST(RunSystem, SaturatedFramesReportFailure) {
   test::TempDir dir;
   const auto images = makeFolder(dir, 4, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(255)); });
   const auto out = dir / "out";
-  const auto r = test::runCli("run --dataset folder:" + images.string() + " --camera " +
+  const auto r = test::runCli("run --no-nerf --dataset folder:" + images.string() + " --camera " +
                               (dir / "camera.yaml").string() + " --out " + out.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(out);
@@ -125,7 +125,7 @@ TEST(RunSystem, CalibrationOfAnotherSizeIsAClearError) {
   const auto images = makeFolder(dir, 3, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(100)); });
   saveCameraYaml(Camera::pinhole(640, 480, 500, 500, 319.5, 239.5), dir / "wrong.yaml");
   const auto out = dir / "out";
-  const auto r = test::runCli("run --dataset folder:" + images.string() + " --camera " + (dir / "wrong.yaml").string() +
+  const auto r = test::runCli("run --no-nerf --dataset folder:" + images.string() + " --camera " + (dir / "wrong.yaml").string() +
                               " --out " + out.string());
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("error:"), std::string::npos) << r.output;
@@ -136,7 +136,7 @@ TEST(RunSystem, CalibrationOfAnotherSizeIsAClearError) {
 TEST(RunSystem, SequenceEndingBeforeInitialisation) {
   NERFSLAM_REQUIRE_DATA(data, "kitti06_first51");
   test::TempDir out;
-  const auto r = test::runCli("run --dataset kitti:" + data.string() + " --max-frames 1 --out " + out.path().string());
+  const auto r = test::runCli("run --no-nerf --dataset kitti:" + data.string() + " --max-frames 1 --out " + out.path().string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(out.path());
   EXPECT_FALSE(rep.at("initialized").get<bool>());
@@ -147,7 +147,7 @@ TEST(RunSystem, SequenceEndingBeforeInitialisation) {
 
 TEST(RunSystem, UnknownDatasetKindIsAClearError) {
   test::TempDir out;
-  const auto r = test::runCli("run --dataset nosuchkind:/tmp --out " + out.path().string());
+  const auto r = test::runCli("run --no-nerf --dataset nosuchkind:/tmp --out " + out.path().string());
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("error:"), std::string::npos) << r.output;
 }

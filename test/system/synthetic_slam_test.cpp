@@ -40,6 +40,7 @@ SynthRun renderAndRun(const test::TempDir& dir, const std::string& scene, const 
   ro.out = dir.path() / "out";
   ro.progress = false;
   ro.max_frames = max_frames;
+  ro.nerf = false;  // sparse SLAM only here; nerf_mapping_test covers the NeRF thread end to end
   const RunResult r = runSlam(ro);
   EXPECT_EQ(r.exit_code, 0);
   return {r.report, r.initialized, ro.out};

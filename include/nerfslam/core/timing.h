@@ -23,6 +23,8 @@ namespace nerfslam {
 // of work on one core, independent of how many other processes share the machine; wall time minus
 // this is time spent preempted or blocked.
 double threadCpuMs();
+// Peak resident set size of this process in MB (VmHWM; 0 where /proc is not available).
+double peakRssMb();
 
 // Monotonic (steady_clock) stopwatch, started on construction.
 class Stopwatch {

@@ -113,6 +113,14 @@ class Map {
   // Applies `T` (a similarity) to every pose and point, e.g. to rescale the map.
   void transform(const Sim3& T);
   void clear();
+  // Saved maps (system/map_store.h). snapshot(): keyframes (by id) and points (by id) copied under one
+  // lock, so their associations agree. restore(): replaces the contents with such a snapshot, ids,
+  // poses, associations, descriptors, normals and statistics kept as given; new ids continue after the
+  // largest restored ones. Throws an Error when the associations disagree (a point's observation
+  // (kf, idx) must be named by that keyframe's slot idx and every slot's point must list it), a
+  // keyframe has no frame or its slots do not match its keypoints.
+  std::pair<std::vector<Keyframe>, std::vector<MapPoint>> snapshot() const;
+  void restore(std::vector<Keyframe> keyframes, std::vector<MapPoint> points);
 
   std::optional<Keyframe> keyframe(KeyframeId id) const;
   std::optional<MapPoint> point(PointId id) const;

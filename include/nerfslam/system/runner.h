@@ -16,14 +16,26 @@
 namespace nerfslam {
 
 struct RunOptions {
-  std::string dataset;  // [kind:]PATH
+  // [kind:]PATH; empty: the demo — the synthetic furnished room (handheld camera, demo_frames frames,
+  // 640x480) is rendered with OSMesa into OUT/sequence and run with its ground truth.
+  std::string dataset;
+  int demo_frames = 300;
   std::optional<std::filesystem::path> camera;
   std::optional<std::filesystem::path> config;
   std::filesystem::path out;
   std::size_t max_frames = 0;  // 0: all
   bool realtime = false;
+  bool nerf = true;  // false: SystemOptions::nerf.enabled = false (--no-nerf)
   bool progress = true;                 // progress line on stderr
   std::optional<SystemOptions> system;  // used instead of defaults + config when set (tests)
+  // Saved maps (system/map_store.h). `map`: start from this map folder in `map_mode` (kLocalize or
+  // kExtend; the map's options are used unless `config` or `system` is given, and its camera must be
+  // the dataset's). The map folder is saved at the end to `save_map`, else to OUT/map when
+  // `save_default_map` (not after kLocalize, which leaves the map as loaded).
+  std::optional<std::filesystem::path> map;
+  MapMode map_mode = MapMode::kSlam;
+  std::optional<std::filesystem::path> save_map;
+  bool save_default_map = true;
 };
 
 struct RunResult {

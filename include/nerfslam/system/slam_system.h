@@ -20,6 +20,7 @@
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/mapping/map.h"
 #include "nerfslam/mapping/mapping_thread.h"
+#include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam/tracking/options.h"
 
 namespace nerfslam {
@@ -43,11 +44,13 @@ struct SystemOptions {
   int reset_if_lost_with_keyframes = 3;  // lost with at most this many keyframes: reinitialise
   int frame_queue = 2;                   // frames between the reader and the tracking thread
   bool lockstep = true;                  // offline runs: the reader waits for tracking and mapping per frame
+  NerfMappingOptions nerf;               // the NeRF mapping thread
 
   template <class V>
   void visit(V& v) {
     v("tracking", tracking, "Tracking front end");
     v("mapping", mapping, "Mapping back end");
+    v("nerf", nerf, "NeRF mapping thread (dense map)");
     v("local_map_keyframes", local_map_keyframes, "Covisible keyframes forming the local map tracked against",
       check::range(1, 1000));
     v("keyframe_queue", keyframe_queue, "Keyframes queued for mapping before new ones are dropped",
@@ -68,6 +71,14 @@ struct SystemOptions {
 enum class TrackingState { kNotInitialized, kTracking, kLost };
 const char* toString(TrackingState s);  // "not_initialized", "tracking", "lost"
 
+// How a system uses the map it starts from (a saved map folder, system/map_store.h).
+//   kSlam      no map: initialise and map as usual
+//   kLocalize  start lost, relocalise in the map, then track against it without changing it (no
+//              keyframes or points added, no tracking statistics, no global BA at finish)
+//   kExtend    start lost, relocalise in the map, then map as usual (new keyframes and points)
+enum class MapMode { kSlam, kLocalize, kExtend };
+const char* toString(MapMode m);  // "slam", "localize", "extend"
+
 struct FrameRecord {
   uint64_t index = 0;
   double timestamp = 0;
@@ -86,6 +97,9 @@ struct FrameRecord {
 class SlamSystem {
  public:
   SlamSystem(const Camera& camera, SystemOptions options);
+  // Starts from a loaded, non-empty map (e.g. LoadedMap::map; its camera must be `camera`) in `mode`
+  // (kLocalize or kExtend); a null map or kSlam is the constructor above.
+  SlamSystem(const Camera& camera, SystemOptions options, std::unique_ptr<Map> map, MapMode mode);
   ~SlamSystem();
   SlamSystem(const SlamSystem&) = delete;
   SlamSystem& operator=(const SlamSystem&) = delete;
@@ -104,6 +118,9 @@ class SlamSystem {
   Map& map() { return *map_; }
   KeyframeBus& keyframeBus() { return mapping_->bus(); }
   MappingThread& mapping() { return *mapping_; }
+  // The NeRF mapping thread (nullptr when options.nerf.enabled is false). finish() stops it.
+  NerfMapping* nerf() { return nerf_.get(); }
+  const NerfMapping* nerf() const { return nerf_.get(); }
   const std::vector<FrameRecord>& records() const { return records_; }
   // Tracked frames with poses resolved through their reference keyframes (current map).
   Trajectory trajectory() const;
@@ -114,6 +131,9 @@ class SlamSystem {
   // Two-view model of the last successful initialisation ("fundamental" or "homography"; empty before).
   const std::string& initializationModel() const { return init_model_; }
   int relocalizations() const { return relocalizations_; }
+  MapMode mapMode() const { return map_mode_; }
+  // Index of the first frame relocalised in the loaded map (-1: not yet, or no loaded map).
+  int64_t relocalizedAtFrame() const { return relocalized_at_frame_; }
 
  private:
   bool initialize(const InitializationResult& r, const std::shared_ptr<const Frame>& frame, FrameRecord& rec);
@@ -125,6 +145,7 @@ class SlamSystem {
   SystemOptions opt_;
   std::unique_ptr<Map> map_;
   std::unique_ptr<MappingThread> mapping_;
+  std::unique_ptr<NerfMapping> nerf_;  // after mapping_: unsubscribes from its bus first
   std::unique_ptr<Initializer> initializer_;
   std::unique_ptr<Tracker> tracker_;
   TrackingState state_ = TrackingState::kNotInitialized;
@@ -143,6 +164,8 @@ class SlamSystem {
   std::vector<std::shared_ptr<const Frame>> pre_init_frames_;  // tracked retroactively after initialisation
   int frames_since_keyframe_ = 0;
   bool finished_ = false;
+  MapMode map_mode_ = MapMode::kSlam;  // kLocalize / kExtend: started from a loaded map
+  int64_t relocalized_at_frame_ = -1;
 };
 
 }  // namespace nerfslam

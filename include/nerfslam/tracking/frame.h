@@ -49,6 +49,7 @@ class Frame {
   double timestamp = 0;
   Camera camera;                             // calibration of the level-0 image (may have distortion)
   std::vector<cv::Mat> pyramid;              // CV_8U grey, pyramid[0] is the input image
+  cv::Mat colour;                            // 8-bit BGR input (shared, not copied); empty for grey input
   std::vector<double> level_scale;           // level_scale[l] = scale_factor^l
   std::vector<cv::KeyPoint> keypoints;       // level-0 pixels (distorted), octave = level, angle in deg
   cv::Mat descriptors;                       // keypoints.size() x 32 CV_8U
@@ -66,7 +67,7 @@ class Frame {
   std::vector<std::vector<int>> grid;
 };
 
-// Builds the frame: grey conversion (if BGR), pyramid, FAST with grid bucketing + adaptive
+// Builds the frame: grey conversion (if BGR; the BGR image is kept in Frame::colour), pyramid, FAST with grid bucketing + adaptive
 // threshold, orientation, ORB descriptors, undistortion. Throws nerfslam::Error on an empty image
 // or an image whose size differs from the camera's.
 Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOptions& options, uint64_t id = 0,

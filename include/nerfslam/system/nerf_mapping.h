@@ -1,0 +1,219 @@
+#pragma once
+// The NeRF mapping thread: trains the CPU radiance field (nerf module) online on the keyframes the
+// sparse SLAM makes, beside tracking and bundle adjustment.
+//
+// Input: a subscription to the mapping thread's KeyframeBus (bounded, drop-oldest: publishing never
+// waits for us, so neither the mapping thread nor tracking ever waits for the NeRF). Each keyframe's
+// colour image (Frame::colour; grey frames are replicated to RGB) becomes a training view, downscaled.
+// Poses: every pose_refresh_steps steps the thread reads the keyframes' current poses from the Map
+// (Map::resolvePose, which follows culled keyframes to their parents), so the poses that local and
+// global bundle adjustment keep improving reach the trainer.
+//
+// Training policy (iMAP / NICE-SLAM style window): a share `recent_share` of each step's rays comes
+// from the `recent_keyframes` newest keyframes; the rest is spread over all keyframes in proportion to
+// their running photometric loss (poorly reconstructed views get more rays, none gets fewer than
+// `min_weight` of the mean), so old areas keep being revisited and are not forgotten.
+//
+// Scene bounds: the first keyframes fix a NeRF-space transform from the sparse map (robust extent of
+// points and camera centres, times box_margin, inside an aabb_scale box with cascades). When the map
+// later outgrows the box (more than refit_outside_fraction of the points, or any camera, outside it)
+// the box is re-fitted around everything and the old field is distilled into the new one (its density
+// and colour regressed at random points of the old box) before training continues, so what was learned
+// is carried over rather than dropped.
+//
+// Thread budget: the trainer runs `threads` threads at a lower scheduling priority (nice
+// `nice_increment`): tracking keeps its core, and when the machine is short of cores the NeRF yields.
+//
+// Everything that reads the model from another thread (renders, saving, export) goes through
+// withModel(), which holds the model lock between steps.
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "nerfslam/core/options.h"
+#include "nerfslam/mapping/map.h"
+#include "nerfslam/mapping/mapping_thread.h"
+#include "nerfslam/nerf/model_io.h"
+#include "nerfslam/nerf/nerf_options.h"
+#include "nerfslam/nerf/trainer.h"
+
+namespace nerfslam {
+
+struct NerfMappingOptions {
+  bool enabled = true;
+  int threads = 1;
+  int nice_increment = 19;
+  double downscale = 2.0;
+  int samples_per_step = 1 << 14;
+  double lr = 1e-2;
+  int log2_hashmap_size = 19;
+  int keyframe_queue = 32;
+  double min_view_distance = 0.02;
+  double min_view_angle_deg = 5.0;
+  int holdout_every = 0;
+  int recent_keyframes = 4;
+  double recent_share = 0.4;
+  double min_weight = 0.25;
+  int pose_refresh_steps = 8;
+  double box_margin = 1.2;
+  double aabb_scale = 2.0;
+  double refit_outside_fraction = 0.05;
+  int refit_check_steps = 200;
+  int distill_steps = 300;
+  double psnr_interval_s = 1.0;
+  double final_train_seconds = 30.0;
+  int final_threads = 0;  // threads for the final training (0: all hardware threads)
+  int64_t seed = 0;
+
+  template <class V>
+  void visit(V& v) {
+    v("enabled", enabled, "Train the NeRF map online (false: sparse-only, like --no-nerf)");
+    v("threads", threads, "NeRF training threads (tracking keeps its own core)", check::range(1, 256));
+    v("nice_increment", nice_increment, "Scheduling niceness added to the NeRF threads (0: same priority)",
+      check::range(0, 19));
+    v("downscale", downscale, "Keyframe images are downscaled by this factor for training", check::range(1.0, 16.0));
+    v("samples_per_step", samples_per_step, "Ray samples per optimiser step", check::range(256, 1 << 22));
+    v("lr", lr, "Adam learning rate", check::positive<double>());
+    v("log2_hashmap_size", log2_hashmap_size, "Hash table entries per level (log2)", check::range(14, 22));
+    v("keyframe_queue", keyframe_queue, "Keyframes waiting for the NeRF thread before the oldest are dropped",
+      check::range(1, 100000));
+    v("min_view_distance", min_view_distance,
+      "A keyframe becomes a training view unless an existing view is closer than this (fraction of the scene box) "
+      "and within min_view_angle_deg",
+      check::range(0.0, 1.0));
+    v("min_view_angle_deg", min_view_angle_deg, "See min_view_distance", check::range(0.0, 180.0));
+    v("holdout_every", holdout_every,
+      "Every n-th keyframe is not trained on (kept to evaluate the NeRF, e.g. on sparse photo sets); 0: none",
+      check::range(0, 1000000));
+    v("recent_keyframes", recent_keyframes, "Newest keyframes that get the recent share of the rays",
+      check::range(1, 1000));
+    v("recent_share", recent_share, "Share of each step's rays drawn from the newest keyframes",
+      check::range(0.0, 1.0));
+    v("min_weight", min_weight, "Smallest sampling weight of a keyframe, relative to the mean",
+      check::range(0.0, 1.0));
+    v("pose_refresh_steps", pose_refresh_steps, "Steps between reading bundle-adjusted keyframe poses",
+      check::range(1, 100000));
+    v("box_margin", box_margin, "Scene box = robust extent of the sparse map times this", check::range(1.0, 100.0));
+    v("aabb_scale", aabb_scale, "NeRF box side in units of the fitted box (power of two: cascades)",
+      check::range(1.0, 128.0));
+    v("refit_outside_fraction", refit_outside_fraction,
+      "Re-fit the box when more than this fraction of the map points is outside it", check::range(0.0, 1.0));
+    v("refit_check_steps", refit_check_steps, "Steps between box checks", check::range(1, 1000000));
+    v("distill_steps", distill_steps, "Steps distilling the old field into the re-fitted one",
+      check::range(0, 1000000));
+    v("psnr_interval_s", psnr_interval_s, "Seconds between running-PSNR updates (newest keyframes' training rays)",
+      check::range(0.1, 1e6));
+    v("final_train_seconds", final_train_seconds,
+      "Offline runs: seconds of NeRF training after the sequence, with the final poses", check::range(0.0, 1e6));
+    v("final_threads", final_threads, "Threads of the final training (0: all hardware threads)",
+      check::range(0, 256));
+    v("seed", seed, "Random seed", check::nonNegative<int64_t>());
+  }
+};
+
+struct NerfMappingStats {
+  int64_t steps = 0;
+  int64_t samples = 0;
+  int64_t rollbacks = 0;
+  int64_t refits = 0;
+  int views = 0;
+  uint64_t keyframes_dropped = 0;  // by the bounded input queue
+  uint64_t keyframes_skipped = 0;  // too close to an existing view
+  uint64_t keyframes_held_out = 0;  // holdout_every
+  double train_seconds = 0;        // wall time inside training steps
+  double steps_per_second = 0;     // over the last few seconds
+  double samples_per_second = 0;
+  double psnr_recent = 0;  // PSNR of the training rays of the newest keyframes (0 before any)
+  double last_loss = 0;
+};
+
+class NerfMapping {
+ public:
+  NerfMapping(Map& map, KeyframeBus& bus, NerfMappingOptions options);
+  ~NerfMapping();
+  NerfMapping(const NerfMapping&) = delete;
+  NerfMapping& operator=(const NerfMapping&) = delete;
+
+  void start();
+  // Takes the keyframes still queued, refreshes the poses, then stops the thread. Idempotent.
+  void stop();
+  // Trains in the calling thread (after stop()): `seconds` of wall time or `steps` steps, whichever
+  // ends first (0: not limiting; both 0: nothing), with the latest poses, on `threads` threads from
+  // now on (0: unchanged). Returns the steps made.
+  int64_t trainFor(double seconds, int64_t steps = 0, int threads = 0);
+
+  NerfMappingStats stats() const;
+  bool hasModel() const;
+  // Keyframe ids of the training views, in view order.
+  std::vector<KeyframeId> viewKeyframes() const;
+  // Frame ids (Frame::id, the runner's frame index) of the training views' images.
+  std::vector<uint64_t> viewFrameIds() const;
+  // Poses the trainer uses for its views (refreshed from the Map every pose_refresh_steps steps).
+  std::vector<SE3> viewPoses() const;
+  // Runs fn on the model under the model lock (between steps); false when there is no model yet.
+  bool withModel(const std::function<void(nerf::NerfModel&)>& fn) const;
+  // Continues from a saved model (a map folder's NeRF, nerf/model_io.h) with the Map's current
+  // keyframes as training views; `train` false freezes it (localisation in a saved map: rendered,
+  // never changed). Throws nerfslam::Error for an unreadable model. Call before keyframes arrive.
+  void resume(const std::filesystem::path& model_file, bool train = true);
+  bool frozen() const { return frozen_; }
+  // Re-fits the scene box now (normally done when the map outgrows it); false without a model.
+  bool refitNow();
+  // The camera of the training views (the keyframe camera scaled by 1/downscale, undistorted).
+  Camera trainingCamera() const;
+
+ private:
+  void run();
+  void drainQueue(bool wait);
+  void addKeyframe(const KeyframeEvent& ev);
+  void createModel();
+  bool isNewView(const SE3& pose) const;
+  void refreshPoses();
+  void updateWeights();
+  bool checkRefit();
+  void refit();
+  nerf::TrainOptions trainOptions() const;
+  // Trains `to` to reproduce `from` inside from's unit cube; returns the last step's loss.
+  double distill(const nerf::NerfModel& from, nerf::NerfModel& to, int steps) const;
+  void measurePsnr();
+  void stepOnce();
+
+  Map& map_;
+  KeyframeBus& bus_;
+  NerfMappingOptions opt_;
+  std::shared_ptr<KeyframeBus::Queue> queue_;
+  std::thread thread_;
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> frozen_{false};
+  bool started_ = false, stopped_ = false;
+
+  mutable std::mutex model_mutex_;  // model_, trainer_ and the views
+  std::unique_ptr<nerf::NerfModel> model_;
+  std::unique_ptr<nerf::Trainer> trainer_;
+  std::vector<KeyframeId> view_kf_;
+  std::vector<uint64_t> view_frame_;
+  std::vector<bool> view_valid_;  // false: the keyframe left the map (not sampled)
+  std::vector<SE3> poses_;  // current pose of each view
+  std::vector<nerf::TrainingView> pending_;  // views waiting for the model (before the box is fitted)
+  std::vector<KeyframeId> pending_kf_;
+  std::vector<uint64_t> pending_frame_;
+  Camera train_camera_;
+  uint64_t seen_map_version_ = 0;
+  int64_t since_refit_check_ = 0;
+  int64_t keyframes_seen_ = 0;
+  int64_t step_offset_ = 0;  // steps of trainers replaced by refits
+  double last_psnr_time_ = -1e9;
+
+  mutable std::mutex stats_mutex_;
+  NerfMappingStats stats_;
+  std::vector<std::pair<double, int64_t>> rate_window_;  // (time, samples) for the rate
+};
+
+}  // namespace nerfslam

@@ -1,0 +1,292 @@
+#include "nerfslam/system/run_outputs.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <spdlog/spdlog.h>
+
+#include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/eval/image_metrics.h"
+#include "nerfslam/io/image_io.h"
+#include "nerfslam/nerf/export.h"
+#include "nerfslam/nerf/renderer.h"
+#include "nerfslam/render/preview.h"
+
+namespace nerfslam {
+namespace {
+
+namespace fs = std::filesystem;
+
+void writePng(const fs::path& path, const cv::Mat& bgr) {
+  AtomicOutput o(path);
+  if (!cv::imwrite(o.tempPath().string(), bgr)) fail("{}: could not write the image", path.string());
+  o.commit();
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  const size_t k = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + long(k), v.end());
+  return v[k];
+}
+
+double mean(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x;
+  return v.empty() ? 0.0 : s / double(v.size());
+}
+
+// n indices spread evenly over [0, size).
+std::vector<size_t> spread(size_t size, int n) {
+  std::vector<size_t> out;
+  if (size == 0 || n <= 0) return out;
+  const size_t k = std::min(size, size_t(n));
+  for (size_t i = 0; i < k; ++i) out.push_back((2 * i + 1) * size / (2 * k));
+  return out;
+}
+
+// depth.txt of a TUM-layout dataset (our synthetic sequences, TUM RGB-D): timestamp -> image.
+// Absent or unreadable: empty (depth evaluation is skipped and the report says why).
+std::map<double, fs::path> depthIndex(const Dataset& ds, std::string* why) {
+  std::map<double, fs::path> idx;
+  if (ds.kind() != "tum") {
+    *why = "the dataset has no depth ground truth";
+    return idx;
+  }
+  const fs::path file = ds.root() / "depth.txt";
+  std::ifstream in(file);
+  if (!in) {
+    *why = file.string() + " not found";
+    return idx;
+  }
+  std::string line;
+  int lineno = 0;
+  while (std::getline(in, line)) {
+    ++lineno;
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream ls(line);
+    double t;
+    std::string rel;
+    if (!(ls >> t >> rel) || !std::isfinite(t)) {
+      *why = fmt::format("{}:{}: expected \"timestamp path\"", file.string(), lineno);
+      return {};
+    }
+    idx[t] = ds.root() / rel;
+  }
+  return idx;
+}
+
+std::optional<fs::path> nearestDepth(const std::map<double, fs::path>& idx, double t) {
+  if (idx.empty()) return std::nullopt;
+  auto it = idx.lower_bound(t);
+  std::optional<std::pair<double, fs::path>> best;
+  for (auto cand : {it, it == idx.begin() ? idx.end() : std::prev(it)}) {
+    if (cand == idx.end()) continue;
+    if (!best || std::abs(cand->first - t) < std::abs(best->first - t)) best = *cand;
+  }
+  if (!best || std::abs(best->first - t) > 0.02) return std::nullopt;
+  return best->second;
+}
+
+// The image as the NeRF saw its keyframes: BGR, downscaled to the training camera.
+cv::Mat toTrainingSize(const cv::Mat& image, const Camera& train) {
+  cv::Mat bgr = image;
+  if (bgr.channels() == 1) cv::cvtColor(bgr, bgr, cv::COLOR_GRAY2BGR);
+  if (bgr.channels() == 4) cv::cvtColor(bgr, bgr, cv::COLOR_BGRA2BGR);
+  if (bgr.cols != train.width || bgr.rows != train.height)
+    cv::resize(bgr, bgr, cv::Size(train.width, train.height), 0, 0, cv::INTER_AREA);
+  return bgr;
+}
+
+struct ViewEval {
+  double psnr = 0;
+  cv::Mat side_by_side;  // render | real
+  cv::Mat depth;         // NeRF z-depth (map units)
+};
+
+ViewEval evaluateView(const nerf::NerfModel& model, const Camera& cam, const SE3& pose, const cv::Mat& real_bgr,
+                      int threads) {
+  nerf::RenderOptions ro;
+  ro.threads = threads;
+  ro.normals = false;
+  ro.background = {0.0, 0.0, 0.0};
+  const nerf::RenderResult r = nerf::renderView(model, cam, pose, ro);
+  cv::Mat rgb_real, f_real;
+  cv::cvtColor(real_bgr, rgb_real, cv::COLOR_BGR2RGB);
+  rgb_real.convertTo(f_real, CV_32F, 1.0 / 255.0);
+  const cv::Mat pred = cv::min(cv::max(r.rgb, 0.0), 1.0);
+  ViewEval e;
+  e.psnr = eval::psnr(pred, f_real, 1.0);
+  cv::hconcat(nerf::toBgr8(pred), real_bgr, e.side_by_side);
+  e.depth = r.depth;
+  return e;
+}
+
+// Up direction of the content: cameras are usually held upright, so the mean of their -y axes.
+Eigen::Vector3d upFromCameras(const std::vector<SE3>& poses) {
+  Eigen::Vector3d up = Eigen::Vector3d::Zero();
+  for (const auto& T : poses) up -= T.rotation().toRotationMatrix().col(1);
+  if (up.norm() < 1e-9) return Eigen::Vector3d::UnitZ();
+  return up.normalized();
+}
+
+}  // namespace
+
+void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& traj,
+                      const std::optional<Sim3>& gt_alignment, const fs::path& out, const NerfEvalOptions& eo,
+                      nlohmann::json& rep, render::PreviewCloud* dense) {
+  NerfMapping* nerf = slam.nerf();
+  if (!nerf) return;
+  const NerfMappingStats st = nerf->stats();
+  rep["nerf_steps"] = st.steps;
+  rep["nerf_samples"] = st.samples;
+  rep["nerf_train_seconds"] = st.train_seconds;
+  rep["nerf_samples_per_second"] = st.train_seconds > 0 ? double(st.samples) / st.train_seconds : 0.0;
+  rep["nerf_rollbacks"] = st.rollbacks;
+  rep["nerf_refits"] = st.refits;
+  rep["nerf_views"] = st.views;
+  rep["nerf_keyframes_dropped"] = st.keyframes_dropped;
+  rep["nerf_keyframes_skipped"] = st.keyframes_skipped;
+  rep["nerf_keyframes_held_out"] = st.keyframes_held_out;
+  if (!nerf->hasModel()) {
+    rep["nerf_error"] = "no NeRF model: the map never initialised";
+    return;
+  }
+  const Camera cam = nerf->trainingCamera();
+  const std::vector<KeyframeId> view_kfs = nerf->viewKeyframes();
+
+  // Frames: tracked poses by timestamp; keyframes by frame index.
+  std::map<double, SE3> pose_at;
+  for (const auto& e : traj) pose_at[e.timestamp] = e.pose;
+  // Held out: tracked frames whose image the NeRF never trained on (not keyframes, or keyframes it
+  // skipped as too close to an existing view), spread over the whole sequence.
+  const auto view_frames = nerf->viewFrameIds();
+  const std::set<uint64_t> trained(view_frames.begin(), view_frames.end());
+  std::vector<const FrameRecord*> heldout;
+  for (const auto& r : slam.records())
+    if (r.tracked && !trained.count(r.index) && pose_at.count(r.timestamp)) heldout.push_back(&r);
+  std::string depth_why;
+  const auto depth_idx = depthIndex(ds, &depth_why);
+  if (!gt_alignment) depth_why = "no Sim(3) alignment to ground truth";
+
+  std::vector<double> psnr_held, psnr_kf, depth_rel;
+  nlohmann::json held_list = nlohmann::json::array();
+  ensureDirectory(out / "nerf" / "heldout");
+  ensureDirectory(out / "nerf" / "keyframes");
+  nerf->withModel([&](nerf::NerfModel& model) {
+    for (size_t k : spread(heldout.size(), eo.heldout_frames)) {
+      const FrameRecord& r = *heldout[k];
+      const SE3 pose = pose_at[r.timestamp];
+      const DatasetFrame f = ds.load(r.index, ImageMode::kColor);
+      const cv::Mat real = toTrainingSize(f.image, cam);
+      const ViewEval e = evaluateView(model, cam, pose, real, eo.threads);
+      psnr_held.push_back(e.psnr);
+      writePng(out / "nerf" / "heldout" / fmt::format("{:06d}.png", r.index), e.side_by_side);
+      nlohmann::json j{{"frame", r.index}, {"psnr", e.psnr}};
+      if (gt_alignment && !depth_idx.empty()) {
+        if (auto dp = nearestDepth(depth_idx, r.timestamp)) {
+          cv::Mat gt16 = readImage(*dp, ImageMode::kUnchanged);
+          if (gt16.type() != CV_16UC1) throw fieldError(dp->string(), "image", "depth must be 16-bit single channel");
+          cv::Mat gt;
+          gt16.convertTo(gt, CV_32F, 1.0 / 5000.0);
+          cv::resize(gt, gt, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_NEAREST);
+          std::vector<double> rel;
+          const double s = gt_alignment->scale();
+          for (int y = 0; y < gt.rows; ++y)
+            for (int x = 0; x < gt.cols; ++x) {
+              const float g = gt.at<float>(y, x), d = e.depth.at<float>(y, x);
+              if (g > 0 && d > 0) rel.push_back(std::abs(s * d - g) / g);
+            }
+          if (!rel.empty()) {
+            const double m = median(rel);
+            depth_rel.push_back(m);
+            j["depth_median_abs_rel"] = m;
+          }
+        }
+      }
+      held_list.push_back(j);
+    }
+    for (size_t k : spread(view_kfs.size(), eo.keyframe_frames)) {
+      const auto kf = slam.map().keyframe(view_kfs[k]);
+      const auto pose = slam.map().resolvePose(view_kfs[k]);
+      if (!kf || !pose || !kf->frame) continue;
+      const cv::Mat img = kf->frame->colour.empty() ? kf->frame->pyramid[0] : kf->frame->colour;
+      const ViewEval e = evaluateView(model, cam, *pose, toTrainingSize(img, cam), eo.threads);
+      psnr_kf.push_back(e.psnr);
+      writePng(out / "nerf" / "keyframes" / fmt::format("{:06d}.png", view_kfs[k]), e.side_by_side);
+    }
+    nerf::saveModel(model, out / "nerf" / "model.nerf");
+    // Dense cloud from keyframe depth renders, and the mesh.
+    nerf::ExportOptions xo;
+    xo.threads = eo.threads;
+    std::vector<nerf::PosedCamera> views;
+    for (size_t k : spread(view_kfs.size(), eo.cloud_views))
+      if (auto pose = slam.map().resolvePose(view_kfs[k])) views.push_back({cam, *pose});
+    const auto cloud = nerf::depthPointCloud(model, views, xo);
+    nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
+    nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");
+    rep["nerf_cloud_points"] = cloud.size();
+    if (dense) {
+      dense->label = "NeRF cloud";
+      for (const auto& p : cloud.points) {
+        dense->points.emplace_back(p.x, p.y, p.z);
+        dense->colors.emplace_back(p.b, p.g, p.r);
+      }
+    }
+    const auto mesh = nerf::extractMesh(model, xo);
+    nerf::saveMesh(mesh, out / "mesh.ply");
+    rep["mesh_triangles"] = mesh.polygons.size();
+  });
+  rep["nerf_psnr_heldout"] = mean(psnr_held);
+  rep["nerf_psnr_heldout_frames"] = psnr_held.size();
+  rep["nerf_psnr_keyframes"] = mean(psnr_kf);
+  rep["nerf_heldout"] = held_list;
+  if (!depth_rel.empty())
+    rep["nerf_depth_median_abs_rel"] = median(depth_rel);
+  else
+    rep["nerf_depth_note"] = depth_why.empty() ? "no depth ground truth for the held-out frames" : depth_why;
+}
+
+void writeRunPreviews(const SlamSystem& slam, const Trajectory& traj, const Trajectory& gt,
+                      const std::optional<Sim3>& align, const render::PreviewCloud& dense, const fs::path& out) {
+  try {
+    render::PreviewScene scene;
+    render::PreviewCloud sparse;
+    sparse.label = "sparse map";
+    for (const auto& p : slam.map().points()) sparse.points.push_back(p.position.cast<float>());
+    if (!sparse.points.empty()) scene.clouds.push_back(std::move(sparse));
+    if (!dense.points.empty()) scene.clouds.push_back(dense);
+    render::PreviewTrajectory est{{}, {0, 0, 255}, "estimate"};
+    for (const auto& e : traj) est.poses.push_back(e.pose);
+    for (const auto& kf : slam.map().keyframes()) scene.keyframes.push_back(kf.T_world_cam);
+    render::PreviewOptions po;
+    po.up = upFromCameras(est.poses);
+    if (!est.poses.empty()) scene.trajectories.push_back(est);
+    if (scene.clouds.empty() && scene.trajectories.empty()) return;
+    writePng(out / "map_preview.png", render::renderPreview(scene, po));
+
+    if (!gt.empty() && align) {
+      render::PreviewScene ts;
+      render::PreviewTrajectory g{{}, {0, 200, 0}, "ground truth"};
+      for (const auto& e : gt) g.poses.push_back(e.pose);
+      render::PreviewTrajectory a{{}, {0, 0, 255}, "estimate (Sim3-aligned)"};
+      for (const auto& e : traj) a.poses.push_back(align->transformPose(e.pose));
+      ts.trajectories = {g, a};
+      render::PreviewOptions to;
+      to.up = upFromCameras(g.poses);
+      writePng(out / "trajectory.png", render::renderPreview(ts, to));
+    }
+  } catch (const std::exception& e) {
+    // Previews need OSMesa; a machine without it still gets every other output.
+    spdlog::warn("previews not written: {}", e.what());
+  }
+}
+
+}  // namespace nerfslam
