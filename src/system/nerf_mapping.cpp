@@ -496,6 +496,12 @@ std::vector<uint64_t> NerfMapping::viewFrameIds() const {
   return view_frame_;
 }
 
+nerf::TrainingView NerfMapping::trainingView(size_t i) const {
+  std::lock_guard<std::mutex> lock(model_mutex_);
+  if (!trainer_) fail("NeRF: no training views yet");
+  return trainer_->view(i);
+}
+
 std::vector<SE3> NerfMapping::viewPoses() const {
   std::lock_guard<std::mutex> lock(model_mutex_);
   std::vector<SE3> out;

@@ -180,6 +180,14 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   nlohmann::json held_list = nlohmann::json::array();
   ensureDirectory(out / "nerf" / "heldout");
   ensureDirectory(out / "nerf" / "keyframes");
+  // Taken before the model lock (these lock it themselves).
+  std::vector<nerf::TrainingView> kf_views;
+  std::vector<KeyframeId> kf_ids;
+  for (size_t k : spread(view_kfs.size(), eo.keyframe_frames)) {
+    kf_views.push_back(nerf->trainingView(k));
+    kf_ids.push_back(view_kfs[k]);
+  }
+  const std::vector<SE3> view_poses = nerf->viewPoses();
   nerf->withModel([&](nerf::NerfModel& model) {
     for (size_t k : spread(heldout.size(), eo.heldout_frames)) {
       const FrameRecord& r = *heldout[k];
@@ -213,22 +221,21 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
       }
       held_list.push_back(j);
     }
-    for (size_t k : spread(view_kfs.size(), eo.keyframe_frames)) {
-      const auto kf = slam.map().keyframe(view_kfs[k]);
-      const auto pose = slam.map().resolvePose(view_kfs[k]);
-      if (!kf || !pose || !kf->frame) continue;
-      const cv::Mat img = kf->frame->colour.empty() ? kf->frame->pyramid[0] : kf->frame->colour;
-      const ViewEval e = evaluateView(model, cam, *pose, toTrainingSize(img, cam), eo.threads);
+    // Training views (keyframes the NeRF trained on; their keyframes may since have been culled).
+    for (size_t j = 0; j < kf_views.size(); ++j) {
+      const nerf::TrainingView& v = kf_views[j];
+      cv::Mat bgr;
+      cv::cvtColor(v.image, bgr, cv::COLOR_RGBA2BGR);
+      const ViewEval e = evaluateView(model, cam, v.T_world_cam, bgr, eo.threads);
       psnr_kf.push_back(e.psnr);
-      writePng(out / "nerf" / "keyframes" / fmt::format("{:06d}.png", view_kfs[k]), e.side_by_side);
+      writePng(out / "nerf" / "keyframes" / fmt::format("{:06d}.png", kf_ids[j]), e.side_by_side);
     }
     nerf::saveModel(model, out / "nerf" / "model.nerf");
     // Dense cloud from keyframe depth renders, and the mesh.
     nerf::ExportOptions xo;
     xo.threads = eo.threads;
     std::vector<nerf::PosedCamera> views;
-    for (size_t k : spread(view_kfs.size(), eo.cloud_views))
-      if (auto pose = slam.map().resolvePose(view_kfs[k])) views.push_back({cam, *pose});
+    for (size_t k : spread(view_poses.size(), eo.cloud_views)) views.push_back({cam, view_poses[k]});
     const auto cloud = nerf::depthPointCloud(model, views, xo);
     nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
     nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");

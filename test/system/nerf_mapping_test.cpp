@@ -271,6 +271,8 @@ TEST(NerfMapping, WholeSystemWritesTheDenseMapAndReport) {
   EXPECT_GT(rep.value("nerf_steps", 0), 50);
   EXPECT_GT(rep.value("nerf_psnr_heldout", 0.0), 14.0) << rep.dump(2);
   EXPECT_GT(rep.value("nerf_psnr_heldout_frames", 0), 3);
+  EXPECT_GT(rep.value("nerf_psnr_keyframes", 0.0), 14.0);
+  EXPECT_FALSE(std::filesystem::is_empty(ro.out / "nerf" / "keyframes"));
   for (const char* f : {"nerf/model.nerf", "nerf_cloud.ply", "nerf_cloud.pcd", "mesh.ply", "map_preview.png",
                         "trajectory.png", "report.json"})
     EXPECT_TRUE(std::filesystem::exists(ro.out / f)) << f;

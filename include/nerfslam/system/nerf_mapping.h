@@ -155,6 +155,8 @@ class NerfMapping {
   std::vector<KeyframeId> viewKeyframes() const;
   // Frame ids (Frame::id, the runner's frame index) of the training views' images.
   std::vector<uint64_t> viewFrameIds() const;
+  // Training view i (image as 8-bit RGBA at the training resolution, camera, current pose).
+  nerf::TrainingView trainingView(size_t i) const;
   // Poses the trainer uses for its views (refreshed from the Map every pose_refresh_steps steps).
   std::vector<SE3> viewPoses() const;
   // Runs fn on the model under the model lock (between steps); false when there is no model yet.
