@@ -49,6 +49,25 @@ TEST(RunSystem, Kitti06First51TracksEveryFrameAccurately) {
   EXPECT_EQ(line, "ply");
 }
 
+// `nerfslam run` without --dataset is the demo: it renders the synthetic room and runs on it, with
+// ground truth (here short and sparse-only; the NeRF end to end is in nerf_mapping_test).
+TEST(RunSystem, WithoutDatasetRunsTheSyntheticRoomDemo) {
+  test::TempDir out;
+  const auto r = test::runCli("run --no-nerf --demo-frames 60 --out " + out.path().string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("no --dataset: rendering the synthetic furnished room"), std::string::npos) << r.output;
+  EXPECT_TRUE(std::filesystem::exists(out / "sequence" / "rgb.txt"));
+  const auto rep = readReport(out.path());
+  EXPECT_EQ(rep.at("frames").get<int>(), 60);
+  EXPECT_TRUE(rep.at("initialized").get<bool>()) << rep.dump(2);
+  EXPECT_GT(rep.at("frames_tracked").get<int>(), 50);
+  EXPECT_LT(rep.at("ate_percent_of_path").get<double>(), 3.0) << rep.dump(2);
+  EXPECT_TRUE(std::filesystem::exists(out / "map_preview.png"));
+  EXPECT_TRUE(std::filesystem::exists(out / "trajectory.png"));
+  const auto bad = test::runCli("run --demo-frames 5 --out " + out.path().string());
+  EXPECT_NE(bad.exit_code, 0);
+}
+
 TEST(RunSystem, NewTsukubaFirst75) {
   NERFSLAM_REQUIRE_DATA(data, "new_tsukuba_150");
   test::TempDir out;
