@@ -428,14 +428,19 @@ std::string encodeKeyframes(const std::vector<Keyframe>& kfs, const std::vector<
 
 constexpr size_t kKeypointBytes = 5 * 4 + 2 * 4 + 2 * 8 + 8 + kDescriptorBytes;
 
-std::vector<KeyframeRecord> decodeKeyframes(const std::string& data, const std::string& file) {
-  Reader r(data, file);
+// Magic and version at the start of our binary files; wrong ones are errors naming the field.
+void readHeader(Reader& r, const char* magic_expected, const char* what) {
   char magic[8];
   r.bytes(magic, 8, "magic");
-  if (std::memcmp(magic, kKeyframesMagic, 8) != 0) r.bad("magic", "not a nerfslam keyframes file");
+  if (std::memcmp(magic, magic_expected, 8) != 0) r.bad("magic", fmt::format("not a nerfslam {} file", what));
   const uint32_t version = r.pod<uint32_t>("version");
   if (version != kBinaryVersion)
-    r.bad("version", fmt::format("keyframes file version {}, this nerfslam reads {}", version, kBinaryVersion));
+    r.bad("version", fmt::format("{} file version {}, this nerfslam reads {}", what, version, kBinaryVersion));
+}
+
+std::vector<KeyframeRecord> decodeKeyframes(const std::string& data, const std::string& file) {
+  Reader r(data, file);
+  readHeader(r, kKeyframesMagic, "keyframes");
   const uint64_t n = r.count(r.pod<uint64_t>("count"), 8 + 8 + 8 + 1 + 56 + 4 + 16 + 4, "count");
   std::vector<KeyframeRecord> out(n);
   for (uint64_t k = 0; k < n; ++k) {
@@ -517,12 +522,7 @@ std::string encodePoints(const std::vector<MapPoint>& points) {
 
 std::vector<MapPoint> decodePoints(const std::string& data, const std::string& file) {
   Reader r(data, file);
-  char magic[8];
-  r.bytes(magic, 8, "magic");
-  if (std::memcmp(magic, kPointsMagic, 8) != 0) r.bad("magic", "not a nerfslam map points file");
-  const uint32_t version = r.pod<uint32_t>("version");
-  if (version != kBinaryVersion)
-    r.bad("version", fmt::format("map points file version {}, this nerfslam reads {}", version, kBinaryVersion));
+  readHeader(r, kPointsMagic, "map points");
   const uint64_t n = r.count(r.pod<uint64_t>("count"), 8 + 48 + 8 + 8 + 4 + 4, "count");
   std::vector<MapPoint> out(n);
   for (uint64_t k = 0; k < n; ++k) {
@@ -584,14 +584,7 @@ std::shared_ptr<const Frame> rebuildFrame(const KeyframeRecord& rec, const cv::M
                                      "tracking.features options",
                                      k.octave, f.pyramid.size()));
     }
-    f.grid_cols = (camera.width + f.grid_cell - 1) / f.grid_cell;
-    f.grid_rows = (camera.height + f.grid_cell - 1) / f.grid_cell;
-    f.grid.assign(static_cast<size_t>(f.grid_cols * f.grid_rows), {});
-    for (size_t i = 0; i < f.keypoints.size(); ++i) {
-      const int gx = std::clamp(static_cast<int>(f.keypoints[i].pt.x / f.grid_cell), 0, f.grid_cols - 1);
-      const int gy = std::clamp(static_cast<int>(f.keypoints[i].pt.y / f.grid_cell), 0, f.grid_rows - 1);
-      f.grid[static_cast<size_t>(gy * f.grid_cols + gx)].push_back(static_cast<int>(i));
-    }
+    f.buildGrid();
   }
   return std::make_shared<const Frame>(std::move(f));
 }

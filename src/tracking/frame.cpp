@@ -145,6 +145,17 @@ std::vector<int> Frame::featuresInArea(const Eigen::Vector2d& uv, double radius,
   return out;
 }
 
+void Frame::buildGrid() {
+  grid_cols = (camera.width + grid_cell - 1) / grid_cell;
+  grid_rows = (camera.height + grid_cell - 1) / grid_cell;
+  grid.assign(static_cast<size_t>(grid_cols * grid_rows), {});
+  for (size_t i = 0; i < keypoints.size(); ++i) {
+    const int gx = std::clamp(static_cast<int>(keypoints[i].pt.x / grid_cell), 0, grid_cols - 1);
+    const int gy = std::clamp(static_cast<int>(keypoints[i].pt.y / grid_cell), 0, grid_rows - 1);
+    grid[static_cast<size_t>(gy * grid_cols + gx)].push_back(static_cast<int>(i));
+  }
+}
+
 Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOptions& opt, uint64_t id,
                    double timestamp) {
   if (image.empty()) fail("extractFrame: empty image (frame {})", id);
@@ -239,14 +250,7 @@ Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOpti
     f.undistorted[i] = distorted ? camera.undistortPoint(uv) : uv;
   }
 
-  f.grid_cols = (camera.width + f.grid_cell - 1) / f.grid_cell;
-  f.grid_rows = (camera.height + f.grid_cell - 1) / f.grid_cell;
-  f.grid.assign(static_cast<size_t>(f.grid_cols * f.grid_rows), {});
-  for (size_t i = 0; i < f.keypoints.size(); ++i) {
-    const int gx = std::clamp(static_cast<int>(f.keypoints[i].pt.x / f.grid_cell), 0, f.grid_cols - 1);
-    const int gy = std::clamp(static_cast<int>(f.keypoints[i].pt.y / f.grid_cell), 0, f.grid_rows - 1);
-    f.grid[static_cast<size_t>(gy * f.grid_cols + gx)].push_back(static_cast<int>(i));
-  }
+  f.buildGrid();
   return f;
 }
 

@@ -62,6 +62,8 @@ class Frame {
   std::vector<int> featuresInArea(const Eigen::Vector2d& uv, double radius, int min_level = 0,
                                   int max_level = -1) const;
 
+  // (Re)builds the grid featuresInArea uses from the keypoints (extractFrame calls it).
+  void buildGrid();
   // Grid used by featuresInArea (filled by extractFrame).
   int grid_cell = 32, grid_cols = 0, grid_rows = 0;
   std::vector<std::vector<int>> grid;
