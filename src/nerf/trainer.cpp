@@ -257,9 +257,7 @@ void Trainer::updateGrid() {
   if (step_ == 0) {
     p.uniform_cells = -1;  // every cell once: the grid starts from a full, untested occupancy
   } else {
-    // Grid queries stay proportional to the training samples: the shares below are for 2^16 samples
-    // per step; smaller steps (online training) sample proportionally fewer cells.
-    const double per_step = std::min(1.0, double(opt_.samples_per_step) / double(1 << 16));
+    const double per_step = opt_.grid_update_scale;
     if (step_ < opt_.grid_warmup_steps) {
       p.uniform_cells = std::max<int64_t>(1, int64_t(double(total) / 4 * per_step));  // instant-ngp's share, uniform
     } else {

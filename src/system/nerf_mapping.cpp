@@ -368,6 +368,8 @@ nerf::TrainOptions NerfMapping::trainOptions() const {
   to.samples_per_step = opt_.samples_per_step;
   to.lr = opt_.lr;
   to.seed = opt_.seed;
+  // Small steps: grid queries proportional to the training samples (the trainer's shares are for 2^16).
+  to.grid_update_scale = std::min(1.0, double(opt_.samples_per_step) / double(1 << 16));
   return to;
 }
 

@@ -20,8 +20,17 @@ TEST(OptionsReference, DocsEmbedTheGeneratedReference) {
   std::stringstream ss;
   ss << is.rdbuf();
   const std::string generated = optionReferenceMarkdown();
-  EXPECT_NE(ss.str().find(generated), std::string::npos)
-      << "docs/options.md is out of date: regenerate its run/train section with `nerfslam options --markdown`";
+  const std::string doc = ss.str();
+  // The generated part is everything after the marker line: exactly the reference, once.
+  const std::string marker = "do not edit below -->\n";
+  const size_t m = doc.find(marker);
+  ASSERT_NE(m, std::string::npos) << "docs/options.md has no generated section";
+  std::string tail = doc.substr(m + marker.size());
+  while (!tail.empty() && tail.front() == '\n') tail.erase(0, 1);
+  std::string expect = generated;
+  while (!expect.empty() && expect.front() == '\n') expect.erase(0, 1);
+  EXPECT_EQ(tail, expect)
+      << "docs/options.md is out of date: run scripts/update_options_doc.sh (`nerfslam options --markdown`)";
 }
 
 // Turns `a.b.c = value  # doc` lines (printOptions) into a nested YAML document.

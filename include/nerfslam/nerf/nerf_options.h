@@ -48,6 +48,9 @@ struct TrainOptions {
   int grid_update_interval = 16;
   int grid_warmup_steps = 256;
   double grid_update_fraction = 1.0 / 16.0;
+  // Scales the cells sampled per update (warm-up and after): online training with small steps sets
+  // it to samples_per_step / 2^16 so grid queries stay proportional to the training samples.
+  double grid_update_scale = 1.0;
   double grid_decay = 0.95;
   double grid_threshold = 0.01;
   // Random background colour per ray (targets composited with the same colour).
@@ -71,6 +74,8 @@ struct TrainOptions {
     v("grid_warmup_steps", grid_warmup_steps, "Steps during which every cell is updated", check::nonNegative<int>());
     v("grid_update_fraction", grid_update_fraction, "Fraction of cells sampled per update after warm-up",
       check::range(0.0, 1.0));
+    v("grid_update_scale", grid_update_scale, "Factor on the cells sampled per occupancy update",
+      check::range(1e-6, 1.0));
     v("grid_decay", grid_decay, "Occupancy decay per update", check::range(0.0, 1.0));
     v("grid_threshold", grid_threshold, "Occupancy threshold cap (density * sqrt(3)/1024)", check::positive<double>());
     v("random_background", random_background, "Random background colour per training ray");
