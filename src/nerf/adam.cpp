@@ -42,6 +42,71 @@ void AdamDenseImpl(float* HWY_RESTRICT param, float* HWY_RESTRICT m, float* HWY_
   }
 }
 
+// Sparse Adam over one hash-grid level (2 features per entry): groups of K = Lanes/2 consecutive
+// entries are one vector; entries whose touched bit is set and whose summed gradient is non-zero
+// are updated (their own step counter selects the bias correction), the others keep their values.
+// Same operation order as adamEntry<2> (no FMA contraction), so every target gives its bits.
+size_t AdamSparseLevelImpl(float* HWY_RESTRICT p, float* HWY_RESTRICT m, float* HWY_RESTRICT v, float* HWY_RESTRICT g,
+                         uint64_t* HWY_RESTRICT touched, uint32_t* HWY_RESTRICT steps, size_t n, float lr,
+                         const AdamOptions& opt, const AdamBiasTable& bias) {
+  const hn::ScalableTag<float> df;
+  const hn::RebindToUnsigned<decltype(df)> du;
+  const size_t NL = hn::Lanes(df);
+  const size_t K = NL / 2;  // entries per vector
+  if (K == 0) return adamSparseLevelScalar(p, m, v, g, touched, steps, n, lr, opt, bias);
+  size_t updated = 0;
+  const float b1 = float(opt.beta1), b2 = float(opt.beta2), eps = float(opt.epsilon);
+  const auto vb1 = hn::Set(df, b1), vb2 = hn::Set(df, b2), va1 = hn::Set(df, 1.f - b1), va2 = hn::Set(df, 1.f - b2),
+             veps = hn::Set(df, eps), vlr = hn::Set(df, lr);
+  HWY_ALIGN float c1[HWY_MAX_BYTES / 4], c2[HWY_MAX_BYTES / 4];
+  HWY_ALIGN uint32_t mk[HWY_MAX_BYTES / 4];
+  const size_t words = (n + 63) / 64;
+  for (size_t w = 0; w < words; ++w) {
+    const uint64_t bits = touched[w];
+    if (!bits) continue;
+    touched[w] = 0;
+    for (size_t k = 0; k < 64; k += K) {
+      const uint64_t sub = (bits >> k) & ((uint64_t(2) << (K - 1)) - 1);
+      if (!sub) continue;
+      const size_t e0 = w * 64 + k;
+      float* ge = g + 2 * e0;
+      bool any = false;
+      for (size_t j = 0; j < K; ++j) {
+        bool act = false;
+        if ((sub >> j) & 1) {
+          act = ge[2 * j] != 0.f || ge[2 * j + 1] != 0.f;
+          if (act) {
+            const uint32_t t = ++steps[e0 + j];
+            c1[2 * j] = c1[2 * j + 1] = bias.correction1(t);
+            c2[2 * j] = c2[2 * j + 1] = bias.correction2(t);
+          }
+        }
+        if (!act) c1[2 * j] = c1[2 * j + 1] = c2[2 * j] = c2[2 * j + 1] = 1.f;
+        mk[2 * j] = mk[2 * j + 1] = act ? ~0u : 0u;
+        any |= act;
+        updated += act;
+      }
+      if (!any) {
+        // Only entries with a zero sum: clear their gradients.
+        hn::StoreU(hn::Zero(df), df, ge);
+        continue;
+      }
+      const auto mask = hn::RebindMask(df, hn::Ne(hn::Load(du, mk), hn::Zero(du)));
+      const auto gv = hn::LoadU(df, ge);
+      const auto p0 = hn::LoadU(df, p + 2 * e0), m0 = hn::LoadU(df, m + 2 * e0), v0 = hn::LoadU(df, v + 2 * e0);
+      const auto m1 = hn::Add(hn::Mul(vb1, m0), hn::Mul(va1, gv));
+      const auto v1 = hn::Add(hn::Mul(vb2, v0), hn::Mul(hn::Mul(va2, gv), gv));
+      const auto mhat = hn::Div(m1, hn::Load(df, c1)), vhat = hn::Div(v1, hn::Load(df, c2));
+      const auto p1 = hn::Sub(p0, hn::Div(hn::Mul(vlr, mhat), hn::Add(hn::Sqrt(vhat), veps)));
+      hn::StoreU(hn::IfThenElse(mask, p1, p0), df, p + 2 * e0);
+      hn::StoreU(hn::IfThenElse(mask, m1, m0), df, m + 2 * e0);
+      hn::StoreU(hn::IfThenElse(mask, v1, v0), df, v + 2 * e0);
+      hn::StoreU(hn::Zero(df), df, ge);
+    }
+  }
+  return updated;
+}
+
 // NOLINTNEXTLINE(google-readability-namespace-comments)
 }  // namespace nerfslam::nerf::HWY_NAMESPACE
 HWY_AFTER_NAMESPACE();
@@ -50,6 +115,7 @@ HWY_AFTER_NAMESPACE();
 namespace nerfslam::nerf {
 
 HWY_EXPORT(AdamDenseImpl);
+HWY_EXPORT(AdamSparseLevelImpl);
 
 AdamBiasTable::AdamBiasTable(const AdamOptions& opt) {
   for (uint32_t t = 0; t < kSize; ++t) {
@@ -67,6 +133,32 @@ void adamDense(float* param, float* m, float* v, const float* grad, size_t n, ui
   HWY_DYNAMIC_DISPATCH(AdamDenseImpl)
   (param, m, v, grad, n, lr, float(opt.beta1), float(opt.beta2), float(opt.epsilon), l2, correction(opt.beta1, t),
    correction(opt.beta2, t));
+}
+
+size_t adamSparseLevelScalar(float* p, float* m, float* v, float* g, uint64_t* touched, uint32_t* steps, size_t n,
+                           float lr, const AdamOptions& opt, const AdamBiasTable& bias) {
+  const size_t words = (n + 63) / 64;
+  size_t updated = 0;
+  for (size_t w = 0; w < words; ++w) {
+    uint64_t bits = touched[w];
+    touched[w] = 0;
+    while (bits) {
+      const size_t e = w * 64 + size_t(__builtin_ctzll(bits));
+      bits &= bits - 1;
+      float* ge = g + 2 * e;
+      const float gs[2] = {ge[0], ge[1]};
+      ge[0] = ge[1] = 0.f;
+      if (gs[0] == 0.f && gs[1] == 0.f) continue;
+      adamEntry<2>(p + 2 * e, m + 2 * e, v + 2 * e, gs, steps + e, lr, opt, bias);
+      ++updated;
+    }
+  }
+  return updated;
+}
+
+size_t adamSparseLevel(float* p, float* m, float* v, float* g, uint64_t* touched, uint32_t* steps, size_t n, float lr,
+                     const AdamOptions& opt, const AdamBiasTable& bias) {
+  return HWY_DYNAMIC_DISPATCH(AdamSparseLevelImpl)(p, m, v, g, touched, steps, n, lr, opt, bias);
 }
 
 void adamDenseScalar(float* param, float* m, float* v, const float* grad, size_t n, uint64_t t, float lr,

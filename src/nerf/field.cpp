@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/timing.h"
 #include "nerfslam/nerf/hash_grid.h"
 #include "nerfslam/nerf/mlp.h"
 #include "nerfslam/nerf/sh.h"
@@ -80,6 +81,13 @@ struct RadianceField::Impl {
     mlp_step_words[1] = uint32_t(t >> 32);
   }
   AdamBiasTable bias;
+  // Per optimiser worker: one level's gradient buffer and touched bitmap (grown to the largest level).
+  struct LevelScratch {
+    HugeVector<float> grad;
+    std::vector<uint64_t> touched;
+  };
+  std::vector<LevelScratch> level_scratch;
+  RadianceField::StepProfile profile;
 
   explicit Impl(const FieldConfig& c) : cfg(c), bias(c.adam) {}
 
@@ -110,10 +118,24 @@ struct RadianceField::Workspace::Impl {
   std::vector<float> dlog, dc2, dc1, dd, dh1, denc;
 };
 
+// The hash-grid part of the gradient is deferred: backward() records each sample's position and
+// d loss / d encoding, and step() scatters them level by level (each level's gradient buffer stays
+// in cache, levels run on different threads, and no thread keeps a dense copy of the whole table).
 struct RadianceField::Gradients::Impl {
   std::vector<float> mlp;
-  HugeVector<float> table;        // 2 per entry
-  std::vector<uint64_t> touched;  // 1 bit per entry
+  size_t n_entries = 0;  // of the field that made it (consistency check)
+  // Recorded samples: pos [n][3], d_enc level-major per segment: segment k covers samples
+  // [seg_begin[k], seg_begin[k+1]) and stores d_enc[l][s][2] at denc + seg_denc[k].
+  size_t n = 0;
+  std::vector<float> pos, denc;
+  std::vector<size_t> seg_begin, seg_denc;
+  // Materialised dense view for gradients() (tests, diagnostics); empty otherwise.
+  HugeVector<float> dense;
+  void clear() {
+    n = 0;
+    seg_begin.clear();
+    seg_denc.clear();
+  }
 };
 
 RadianceField::Workspace::Workspace() : impl_(std::make_unique<Impl>()) {}
@@ -177,6 +199,7 @@ RadianceField::RadianceField(const FieldConfig& config, uint64_t seed) {
 
 const FieldConfig& RadianceField::config() const { return impl_->cfg; }
 uint64_t RadianceField::stepCount() const { return impl_->mlpStep(); }
+const RadianceField::StepProfile& RadianceField::lastStepProfile() const { return impl_->profile; }
 size_t RadianceField::numParameters() const { return impl_->table.size() + impl_->n_mlp; }
 
 // ---------------------------------------------------------------------------------------------
@@ -260,6 +283,43 @@ void RadianceField::query(const float* pos, const float* dir, size_t n, float* s
   }
 }
 
+void RadianceField::queryDensityOutputs(const float* pos, size_t n, float* sigma, float* geo) const {
+  const Impl& f = *impl_;
+  const size_t H = size_t(f.H);
+  thread_local std::vector<float> encT, h1;
+  if (encT.size() < size_t(f.n_enc) * kTile) encT.resize(size_t(f.n_enc) * kTile);
+  if (h1.size() < kTile * H) h1.resize(kTile * H);
+  const float clampv = float(f.cfg.max_log_density);
+  for (size_t s0 = 0; s0 < n; s0 += kTile) {
+    const size_t m = std::min(kTile, n - s0);
+    hashEncode(f.grid(), pos + 3 * s0, m, encT.data(), kTile);
+    float* d = geo + s0 * kDensityOutputs;
+    densityTile(f, m, encT.data(), h1.data(), d, kDensityOutputs);
+    if (sigma)
+      for (size_t i = 0; i < m; ++i) sigma[s0 + i] = std::exp(std::min(d[i * kDensityOutputs], clampv));
+  }
+}
+
+void RadianceField::queryColor(const float* geo, const float* dir, size_t n, float* rgb) const {
+  const Impl& f = *impl_;
+  const size_t H = size_t(f.H);
+  thread_local std::vector<float> cin, c1, c2, logits;
+  if (cin.size() < kTile * kColorIn) cin.resize(kTile * kColorIn);
+  if (c1.size() < kTile * H) c1.resize(kTile * H);
+  if (c2.size() < kTile * H) c2.resize(kTile * H);
+  if (logits.size() < kTile * kColorOutPadded) logits.resize(kTile * kColorOutPadded);
+  for (size_t s0 = 0; s0 < n; s0 += kTile) {
+    const size_t m = std::min(kTile, n - s0);
+    for (size_t i = 0; i < m; ++i)
+      std::copy(geo + (s0 + i) * kDensityOutputs, geo + (s0 + i + 1) * kDensityOutputs,
+                cin.data() + i * kColorIn + kShCoeffs);
+    shEncodeBatch(dir + 3 * s0, m, cin.data(), kColorIn);
+    colorTile(f, m, cin.data(), c1.data(), c2.data(), logits.data());
+    for (size_t i = 0; i < m; ++i)
+      for (int k = 0; k < 3; ++k) rgb[3 * (s0 + i) + size_t(k)] = sigmoid(logits[i * kColorOutPadded + size_t(k)]);
+  }
+}
+
 void RadianceField::densityGradient(const float* pos, size_t n, float* grad) const {
   const Impl& f = *impl_;
   const size_t H = size_t(f.H), E = size_t(f.n_enc);
@@ -288,8 +348,7 @@ RadianceField::Workspace RadianceField::makeWorkspace() const { return Workspace
 RadianceField::Gradients RadianceField::makeGradients() const {
   Gradients g;
   g.impl_->mlp.assign(impl_->n_mlp, 0.f);
-  g.impl_->table.assign(impl_->table.size(), 0.f);
-  g.impl_->touched.assign((impl_->n_entries + 63) / 64, 0u);
+  g.impl_->n_entries = impl_->n_entries;
   return g;
 }
 
@@ -338,9 +397,18 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
   const Impl& f = *impl_;
   Workspace::Impl& ws = *wsp.impl_;
   Gradients::Impl& g = *grads.impl_;
-  if (g.table.size() != f.table.size() || g.mlp.size() != f.n_mlp)
+  if (g.n_entries != f.n_entries || g.mlp.size() != f.n_mlp)
     fail("RadianceField::backward: gradients were not made by this field");
   const size_t n = ws.n, H = size_t(f.H), E = size_t(f.n_enc);
+  // Record this call's samples as one segment of the deferred hash-grid gradient.
+  const size_t seg0 = g.n, denc0 = g.seg_denc.empty() ? 0 : g.seg_denc.back() + E * (g.n - g.seg_begin.back());
+  g.seg_begin.push_back(seg0);
+  g.seg_denc.push_back(denc0);
+  g.n += n;
+  if (g.pos.size() < 3 * g.n) g.pos.resize(3 * g.n);
+  if (g.denc.size() < denc0 + E * n) g.denc.resize(denc0 + E * n);
+  std::copy(ws.pos.begin(), ws.pos.begin() + long(3 * n), g.pos.begin() + long(3 * seg0));
+  float* seg_denc = g.denc.data() + denc0;  // [l][s][2], s < n
   const size_t n_tiles = (n + kTile - 1) / kTile;
   auto grow = [](std::vector<float>& v, size_t size) {
     if (v.size() < size) v.resize(size);
@@ -397,7 +465,28 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
             H));
     gemm(mm(E, H, m, encT, kTile, 1, ws.dh1.data(), H, gw + f.off_d0, H, Epilogue::kNone, nullptr, 0, true));
     gemm(mm(m, E, H, ws.dh1.data(), H, 1, f.WT(f.off_d0), E, ws.denc.data(), E));
-    hashEncodeBackward(f.grid(), ws.pos.data() + 3 * s0, m, ws.denc.data(), g.table.data(), g.touched.data());
+    // Keep d_enc level-major for the optimiser's per-level scatter.
+    for (size_t l = 0; l < E / 2; ++l) {
+      float* dst = seg_denc + l * 2 * n + 2 * s0;
+      const float* src = ws.denc.data() + 2 * l;
+      for (size_t i = 0; i < m; ++i) {
+        dst[2 * i] = src[i * E];
+        dst[2 * i + 1] = src[i * E + 1];
+      }
+    }
+  }
+}
+
+// Scatters the recorded samples of `grads` (in order) into one level's gradient buffer.
+static void scatterLevel(const RadianceField::Impl& f, const RadianceField::Gradients::Impl& g, int level,
+                         float* grad_level, uint64_t* touched_level) {
+  const size_t E = size_t(f.n_enc);
+  for (size_t k = 0; k < g.seg_begin.size(); ++k) {
+    const size_t b = g.seg_begin[k], e = k + 1 < g.seg_begin.size() ? g.seg_begin[k + 1] : g.n;
+    if (e <= b) continue;
+    (void)E;
+    hashEncodeBackwardLevel(f.grid(), level, g.pos.data() + 3 * b, e - b,
+                            g.denc.data() + g.seg_denc[k] + size_t(level) * 2 * (e - b), grad_level, touched_level);
   }
 }
 
@@ -407,8 +496,9 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
 void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, int n_threads) {
   Impl& f = *impl_;
   for (const Gradients* g : per_thread)
-    if (!g || g->impl_->table.size() != f.table.size() || g->impl_->mlp.size() != f.n_mlp)
+    if (!g || g->impl_->n_entries != f.n_entries || g->impl_->mlp.size() != f.n_mlp)
       fail("RadianceField::step: gradients were not made by this field");
+  const double cpu_mlp0 = threadCpuMs();
   // MLP: sum in thread order, dense Adam with L2.
   std::fill(f.mlp_grad_sum.begin(), f.mlp_grad_sum.end(), 0.f);
   for (Gradients* g : per_thread) {
@@ -421,51 +511,54 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
   adamDense(f.mlp.data(), f.mlp_m.data(), f.mlp_v.data(), f.mlp_grad_sum.data(), f.n_mlp, t_mlp, lr, f.cfg.adam,
             float(f.cfg.adam.mlp_l2));
   f.refreshTransposed();
+  f.profile = StepProfile{};
+  f.profile.mlp_seconds = 1e-3 * (threadCpuMs() - cpu_mlp0);
 
-  // Hash grid: visit the union of the touched bitmaps word by word; entries are independent, so
-  // any split of the words over workers gives the same result.
-  const size_t n_words = (f.n_entries + 63) / 64;
-  const size_t T = per_thread.size();
-  auto work = [&](size_t w0, size_t w1) {
-    std::vector<float*> tg(T);
-    std::vector<uint64_t*> tb(T);
-    for (size_t t = 0; t < T; ++t) {
-      tg[t] = per_thread[t]->impl_->table.data();
-      tb[t] = per_thread[t]->impl_->touched.data();
-    }
-    for (size_t w = w0; w < w1; ++w) {
-      uint64_t any = 0;
-      for (size_t t = 0; t < T; ++t) any |= tb[t][w];
-      while (any) {
-        const int b = __builtin_ctzll(any);
-        any &= any - 1;
-        const size_t e = w * 64 + size_t(b);
-        float gsum[2] = {0.f, 0.f};
-        for (size_t t = 0; t < T; ++t) {
-          if (!((tb[t][w] >> b) & 1)) continue;
-          gsum[0] += tg[t][2 * e];
-          gsum[1] += tg[t][2 * e + 1];
-          tg[t][2 * e] = 0.f;
-          tg[t][2 * e + 1] = 0.f;
-        }
-        // tiny-cuda-nn skips entries whose summed gradient is exactly zero.
-        if (gsum[0] == 0.f && gsum[1] == 0.f) continue;
-        adamEntry<2>(&f.table[2 * e], &f.table_m[2 * e], &f.table_v[2 * e], gsum, &f.table_steps[e], lr, f.cfg.adam,
-                     f.bias);
-      }
-      for (size_t t = 0; t < T; ++t) tb[t][w] = 0;
+  // Hash grid, level by level: scatter every recorded sample (threads in the given order, samples
+  // in order) into the level's buffer, then apply the sparse Adam rule to the entries touched.
+  // Levels are independent, so the split of levels over workers does not change the result.
+  size_t recorded = 0;
+  for (const Gradients* g : per_thread) recorded += g->impl_->n;
+  const int L = int(f.levels.size());
+  const int workers = recorded == 0 ? 1 : std::clamp(n_threads, 1, L);
+  uint32_t max_level = 0;
+  for (const GridLevel& lv : f.levels) max_level = std::max(max_level, lv.size);
+  if (f.level_scratch.size() < size_t(workers)) f.level_scratch.resize(size_t(workers));
+  std::vector<double> scatter_ms(size_t(workers), 0.0), adam_ms(size_t(workers), 0.0);
+  std::vector<size_t> updated(size_t(workers), 0);
+  auto work = [&](int w) {
+    Impl::LevelScratch& sc = f.level_scratch[size_t(w)];
+    if (sc.grad.size() < 2 * size_t(max_level)) sc.grad.assign(2 * size_t(max_level), 0.f);
+    if (sc.touched.size() < (size_t(max_level) + 63) / 64) sc.touched.assign((size_t(max_level) + 63) / 64, 0u);
+    // Level l goes to worker l % workers: the levels cost about the same (8 corners per sample).
+    for (int l = w; l < L && recorded > 0; l += workers) {
+      const GridLevel& lv = f.levels[size_t(l)];
+      const double c0 = threadCpuMs();
+      for (const Gradients* g : per_thread) scatterLevel(f, *g->impl_, l, sc.grad.data(), sc.touched.data());
+      const double c1 = threadCpuMs();
+      updated[size_t(w)] += adamSparseLevel(f.table.data() + 2 * size_t(lv.offset), f.table_m.data() + 2 * size_t(lv.offset),
+                      f.table_v.data() + 2 * size_t(lv.offset), sc.grad.data(), sc.touched.data(),
+                      f.table_steps.data() + lv.offset, lv.size, lr, f.cfg.adam, f.bias);
+      scatter_ms[size_t(w)] += c1 - c0;
+      adam_ms[size_t(w)] += threadCpuMs() - c1;
     }
   };
-  const size_t workers = size_t(std::max(1, n_threads));
-  if (workers == 1 || n_words < 4096) {
-    work(0, n_words);
+  if (workers == 1) {
+    work(0);
   } else {
     std::vector<std::thread> pool;
-    const size_t chunk = (n_words + workers - 1) / workers;
-    for (size_t i = 1; i < workers; ++i)
-      pool.emplace_back(work, std::min(n_words, i * chunk), std::min(n_words, (i + 1) * chunk));
-    work(0, std::min(n_words, chunk));
+    for (int i = 1; i < workers; ++i) pool.emplace_back(work, i);
+    work(0);
     for (auto& th : pool) th.join();
+  }
+  for (int w = 0; w < workers; ++w) {
+    f.profile.scatter_seconds += 1e-3 * scatter_ms[size_t(w)];
+    f.profile.adam_seconds += 1e-3 * adam_ms[size_t(w)];
+    f.profile.entries_updated += updated[size_t(w)];
+  }
+  for (Gradients* g : per_thread) {
+    g->impl_->clear();
+    g->impl_->dense = HugeVector<float>();
   }
 }
 
@@ -488,7 +581,15 @@ std::vector<FloatArray> RadianceField::gradients(Gradients& grads) const {
   Gradients::Impl& g = *grads.impl_;
   const size_t H = size_t(f.H);
   float* w = g.mlp.data();
-  return {{"hash_grid", g.table.data(), g.table.size()},
+  // Materialise the deferred hash-grid gradient (the sum step() would apply).
+  g.dense.assign(f.table.size(), 0.f);
+  std::vector<uint64_t> touched;
+  for (int l = 0; l < int(f.levels.size()); ++l) {
+    const GridLevel& lv = f.levels[size_t(l)];
+    touched.assign((size_t(lv.size) + 63) / 64, 0u);
+    scatterLevel(f, g, l, g.dense.data() + 2 * size_t(lv.offset), touched.data());
+  }
+  return {{"hash_grid", g.dense.data(), g.dense.size()},
           {"density.w0", w + f.off_d0, size_t(f.n_enc) * H},
           {"density.w1", w + f.off_d1, H * kDensityOutputs},
           {"color.w0", w + f.off_c0, size_t(kColorIn) * H},

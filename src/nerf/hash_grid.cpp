@@ -107,10 +107,179 @@ HWY_INLINE void LoadPositions(const float* pos, size_t s, size_t lanes, float* x
   }
 }
 
+// ---- Blocked, software-pipelined encoding.
+//
+// The hashed (and the large dense) levels are random accesses into tables far larger than L2: the
+// kernel is bound by how many cache misses it keeps in flight, not by arithmetic. Samples are
+// processed in blocks of kBlock; for each block an index pass computes the 8 corner indices and
+// weights of every sample on one level, stores them in a small ring of scratch slots and
+// prefetches the lines, kAhead levels ahead of the gather pass that interpolates. By the time a
+// level is gathered its lines have been requested for the whole block (kBlock x 4 lines per level
+// in flight rather than one vector's worth), and the gathers read both features of a corner as one
+// 64-bit element.
+constexpr size_t kBlock = 64;
+constexpr int kAhead = 2;
+constexpr int kRing = 4;  // > kAhead
+// Levels with at most this many entries (<= 128 KiB) are cache resident: not prefetched.
+constexpr uint32_t kPrefetchMinEntries = 1u << 14;
+
+struct BlockScratch {
+  HWY_ALIGN float xs[kBlock], ys[kBlock], zs[kBlock];
+  HWY_ALIGN uint32_t idx[kRing][8][kBlock];  // relative to the level
+  HWY_ALIGN float w[kRing][8][kBlock];
+};
+
+// Positions of samples [s0, s0 + m) as clamped SoA, padded up to a whole number of vectors with
+// copies of the first sample (padding lanes compute valid indices and are never stored).
+HWY_INLINE size_t LoadBlock(const float* pos, size_t s0, size_t m, size_t lanes, BlockScratch& b) {
+  LoadPositions(pos, s0, m, b.xs, b.ys, b.zs);
+  const size_t padded = (m + lanes - 1) / lanes * lanes;
+  for (size_t j = m; j < padded; ++j) {
+    b.xs[j] = b.xs[0];
+    b.ys[j] = b.ys[0];
+    b.zs[j] = b.zs[0];
+  }
+  return padded;
+}
+
+// Index pass of one level for a block: corner indices and weights into ring slot `slot`, and a
+// prefetch of the lines of corners 0, 2, 4, 6 (with pi_1 = 1 the +x neighbour is almost always in
+// the same 64-byte line) from `base` (the level's first entry, 2 floats per entry).
+HWY_INLINE void IndexPass(const GridLevel& L, size_t padded, BlockScratch& b, int slot, const float* base) {
+  const hn::ScalableTag<float> df;
+  const hn::RebindToUnsigned<decltype(df)> du;
+  const size_t N = hn::Lanes(df);
+  const bool prefetch = L.size > kPrefetchMinEntries;
+  for (size_t s = 0; s < padded; s += N) {
+    hn::Vec<decltype(du)> idx[8];
+    hn::Vec<decltype(df)> w[8];
+    CornersVec(df, L, hn::Load(df, b.xs + s), hn::Load(df, b.ys + s), hn::Load(df, b.zs + s), idx, w);
+    for (int c = 0; c < 8; ++c) {
+      hn::Store(idx[c], du, b.idx[slot][c] + s);
+      hn::Store(w[c], df, b.w[slot][c] + s);
+    }
+    if (prefetch) {
+      for (int c = 0; c < 8; c += 2)
+        for (size_t j = 0; j < N; ++j) hwy::Prefetch(base + 2 * size_t(b.idx[slot][c][s + j]));
+    }
+  }
+}
+
+// Gather pass of one level for a block: enc[2l][s], enc[2l+1][s] for the block's m samples.
+HWY_INLINE void GatherPass(const float* t, size_t m, size_t padded, const BlockScratch& b, int slot, float* enc0,
+                           float* enc1) {
+#if HWY_ARCH_X86 && HWY_TARGET <= HWY_AVX2
+  // Hardware gathers: each corner is one 64-bit element (both features); lanes alternate f0, f1.
+  const hn::ScalableTag<float> df;
+  const size_t N = hn::Lanes(df);
+  const hn::Repartition<uint64_t, decltype(df)> d64;  // N/2 lanes
+  const hn::Rebind<uint32_t, decltype(d64)> d32h;     // N/2 lanes of uint32
+  const hn::Rebind<float, decltype(d64)> dfh;       // N/2 lanes of float
+  const hn::RebindToSigned<decltype(d64)> di64;
+  const uint64_t* t64 = reinterpret_cast<const uint64_t*>(t);
+  HWY_ALIGN float tmp0[HWY_MAX_BYTES / 4], tmp1[HWY_MAX_BYTES / 4];
+  for (size_t s = 0; s < padded; s += N) {
+    auto acc0 = hn::Zero(df), acc1 = hn::Zero(df);
+    for (int c = 0; c < 8; ++c) {
+      for (size_t h = 0; h < 2; ++h) {
+        const size_t o = s + h * (N / 2);
+        const auto i64 = hn::PromoteTo(d64, hn::Load(d32h, b.idx[slot][c] + o));
+        const auto v = hn::BitCast(df, hn::GatherIndex(d64, t64, hn::BitCast(di64, i64)));
+        const auto wu = hn::PromoteTo(d64, hn::BitCast(d32h, hn::Load(dfh, b.w[slot][c] + o)));
+        const auto w2 = hn::BitCast(df, hn::Or(wu, hn::ShiftLeft<32>(wu)));  // (w, w) per sample
+        if (h == 0)
+          acc0 = hn::MulAdd(w2, v, acc0);
+        else
+          acc1 = hn::MulAdd(w2, v, acc1);
+      }
+    }
+    const auto f0 = hn::ConcatEven(df, acc1, acc0), f1 = hn::ConcatOdd(df, acc1, acc0);
+    if (s + N <= m) {
+      hn::StoreU(f0, df, enc0 + s);
+      hn::StoreU(f1, df, enc1 + s);
+    } else {
+      hn::Store(f0, df, tmp0);
+      hn::Store(f1, df, tmp1);
+      for (size_t j = 0; s + j < m; ++j) {
+        enc0[s + j] = tmp0[j];
+        enc1[s + j] = tmp1[j];
+      }
+    }
+  }
+#else
+  (void)padded;
+  for (size_t s = 0; s < m; ++s) {
+    float f0 = 0.f, f1 = 0.f;
+    for (int c = 0; c < 8; ++c) {
+      const float* e = t + 2 * size_t(b.idx[slot][c][s]);
+      const float w = b.w[slot][c][s];
+      f0 += w * e[0];
+      f1 += w * e[1];
+    }
+    enc0[s] = f0;
+    enc1[s] = f1;
+  }
+#endif
+}
+
+void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
+  const hn::ScalableTag<float> df;
+  const size_t N = hn::Lanes(df);
+  BlockScratch b;
+  const int L = grid.n_levels;
+  for (size_t s0 = 0; s0 < n; s0 += kBlock) {
+    const size_t m = std::min(kBlock, n - s0);
+    const size_t padded = LoadBlock(pos, s0, m, N, b);
+    auto index = [&](int l) {
+      IndexPass(grid.levels[l], padded, b, l % kRing, grid.table + 2 * size_t(grid.levels[l].offset));
+    };
+    for (int l = 0; l < std::min(kAhead, L); ++l) index(l);
+    for (int l = 0; l < L; ++l) {
+      if (l + kAhead < L) index(l + kAhead);
+      GatherPass(grid.table + 2 * size_t(grid.levels[l].offset), m, padded, b, l % kRing,
+                 enc + size_t(2 * l) * ld + s0, enc + size_t(2 * l + 1) * ld + s0);
+    }
+  }
+}
+
+// Backward of one level, pipelined by block: the index pass of block k+1 (which prefetches the
+// gradient lines) runs before the scatter of block k. The scatter is scalar and in sample order
+// (samples of a block often share corners).
+void HashEncodeBackwardLevelImpl(const HashGridView& grid, int level, const float* pos, size_t n, const float* d_level,
+                                 float* grad, uint64_t* touched) {
+  const hn::ScalableTag<float> df;
+  const size_t N = hn::Lanes(df);
+  const GridLevel& L = grid.levels[level];
+  BlockScratch b;
+  auto scatter = [&](size_t s0, size_t m, int slot) {
+    for (size_t j = 0; j < m; ++j) {
+      const float d0 = d_level[2 * (s0 + j)], d1 = d_level[2 * (s0 + j) + 1];
+      if (d0 == 0.f && d1 == 0.f) continue;
+      for (int c = 0; c < 8; ++c) {
+        const uint32_t e = b.idx[slot][c][j];
+        const float wc = b.w[slot][c][j];
+        grad[2 * e] += wc * d0;
+        grad[2 * e + 1] += wc * d1;
+        touched[e >> 6] |= uint64_t(1) << (e & 63);
+      }
+    }
+  };
+  size_t prev_s0 = 0, prev_m = 0;
+  int slot = 0;
+  for (size_t s0 = 0; s0 < n; s0 += kBlock) {
+    const size_t m = std::min(kBlock, n - s0);
+    const size_t padded = LoadBlock(pos, s0, m, N, b);
+    IndexPass(L, padded, b, slot, grad);
+    if (prev_m) scatter(prev_s0, prev_m, slot ^ 1);
+    prev_s0 = s0;
+    prev_m = m;
+    slot ^= 1;
+  }
+  if (prev_m) scatter(prev_s0, prev_m, slot ^ 1);
+}
+
 // Software prefetch of the table lines the Lanes(df) samples starting at `s` will touch on the
-// hashed levels (dense levels are small and cache-resident). With pi_1 = 1 the x-neighbours of a
-// corner usually share its cache line, so corners 0, 2, 4, 6 cover a cell. The hashed levels are
-// random accesses into tables larger than L2: without this the gathers wait on memory serially.
+// hashed levels (the full-table backward below, used by tests and diagnostics).
 HWY_INLINE void PrefetchChunk(const HashGridView& grid, const float* base, const float* pos, size_t s, size_t n) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
@@ -131,40 +300,6 @@ HWY_INLINE void PrefetchChunk(const HashGridView& grid, const float* base, const
       hn::Store(idx[c], du, ib);
       for (size_t j = 0; j < N; ++j) hwy::Prefetch(t + 2 * size_t(ib[j]));
     }
-  }
-}
-
-void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float* enc, size_t ld) {
-  const hn::ScalableTag<float> df;
-  const hn::RebindToUnsigned<decltype(df)> du;
-  const hn::RebindToSigned<decltype(df)> di;
-  const size_t N = hn::Lanes(df);
-  HWY_ALIGN float xs[HWY_MAX_BYTES / 4], ys[HWY_MAX_BYTES / 4], zs[HWY_MAX_BYTES / 4];
-  size_t s = 0;
-  PrefetchChunk(grid, grid.table, pos, 0, n);
-  for (; s + N <= n; s += N) {
-    PrefetchChunk(grid, grid.table, pos, s + N, n);
-    LoadPositions(pos, s, N, xs, ys, zs);
-    const auto px = hn::Load(df, xs), py = hn::Load(df, ys), pz = hn::Load(df, zs);
-    for (int l = 0; l < grid.n_levels; ++l) {
-      const GridLevel& L = grid.levels[l];
-      hn::Vec<decltype(du)> idx[8];
-      hn::Vec<decltype(df)> w[8];
-      CornersVec(df, L, px, py, pz, idx, w);
-      const float* t = grid.table + 2 * size_t(L.offset);
-      auto f0 = hn::Zero(df), f1 = hn::Zero(df);
-      for (int c = 0; c < 8; ++c) {
-        const auto i2 = hn::BitCast(di, hn::Add(idx[c], idx[c]));
-        f0 = hn::MulAdd(w[c], hn::GatherIndex(df, t, i2), f0);
-        f1 = hn::MulAdd(w[c], hn::GatherIndex(df, t + 1, i2), f1);
-      }
-      hn::StoreU(f0, df, enc + size_t(2 * l) * ld + s);
-      hn::StoreU(f1, df, enc + size_t(2 * l + 1) * ld + s);
-    }
-  }
-  if (s < n) {
-    // Tail: shift the pointers so the scalar reference writes columns s..n-1.
-    hashEncodeScalar(grid, pos + 3 * s, n - s, enc + s, ld);
   }
 }
 
@@ -222,6 +357,7 @@ namespace nerfslam::nerf {
 
 HWY_EXPORT(HashEncodeImpl);
 HWY_EXPORT(HashEncodeBackwardImpl);
+HWY_EXPORT(HashEncodeBackwardLevelImpl);
 
 std::vector<GridLevel> gridLevels(int n_levels, int base_resolution, double finest_resolution, int log2_hashmap_size) {
   std::vector<GridLevel> levels(size_t(std::max(n_levels, 0)));
@@ -280,6 +416,24 @@ void hashEncodeBackwardScalar(const HashGridView& grid, const float* pos, size_t
   }
 }
 
+void hashEncodeBackwardLevelScalar(const HashGridView& grid, int level, const float* pos, size_t n,
+                                   const float* d_level, float* grad_level, uint64_t* touched_level) {
+  const GridLevel& L = grid.levels[level];
+  for (size_t s = 0; s < n; ++s) {
+    const float d0 = d_level[2 * s], d1 = d_level[2 * s + 1];
+    if (d0 == 0.f && d1 == 0.f) continue;
+    uint32_t idx[8];
+    float w[8];
+    detail::cellCorners(L, pos + 3 * s, idx, w);
+    for (int c = 0; c < 8; ++c) {
+      const uint32_t e = idx[c] - L.offset;
+      grad_level[2 * size_t(e)] += w[c] * d0;
+      grad_level[2 * size_t(e) + 1] += w[c] * d1;
+      touched_level[e >> 6] |= uint64_t(1) << (e & 63);
+    }
+  }
+}
+
 void hashEncodePositionGradient(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* out) {
   const size_t nf = size_t(2 * grid.n_levels);
   for (size_t s = 0; s < n; ++s) {
@@ -313,6 +467,11 @@ void hashEncode(const HashGridView& grid, const float* pos, size_t n, float* enc
 void hashEncodeBackward(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* grad_table,
                         uint64_t* touched) {
   HWY_DYNAMIC_DISPATCH(HashEncodeBackwardImpl)(grid, pos, n, d_enc, grad_table, touched);
+}
+
+void hashEncodeBackwardLevel(const HashGridView& grid, int level, const float* pos, size_t n, const float* d_level,
+                             float* grad_level, uint64_t* touched_level) {
+  HWY_DYNAMIC_DISPATCH(HashEncodeBackwardLevelImpl)(grid, level, pos, n, d_level, grad_level, touched_level);
 }
 
 }  // namespace nerfslam::nerf

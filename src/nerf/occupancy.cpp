@@ -12,6 +12,10 @@ OccupancyGrid::OccupancyGrid(int cascades) : cascades_(cascades) {
   if (cascades < 1 || cascades > 8) fail("occupancy grid: cascades must be in [1, 8], got {}", cascades);
   values_.assign(size_t(cascades) * kCells, 0.f);
   bits_.assign(size_t(cascades) * kCells / 64, ~uint64_t(0));
+  for (int k = 1; k <= 2; ++k) {
+    const size_t r = size_t(kRes >> kBlockShift[k]);
+    coarse_[k - 1].assign((size_t(cascades) * r * r * r + 63) / 64, ~uint64_t(0));
+  }
 }
 
 int OccupancyGrid::cascadesForAabbScale(double aabb_scale) {
@@ -19,20 +23,22 @@ int OccupancyGrid::cascadesForAabbScale(double aabb_scale) {
 }
 
 int OccupancyGrid::mipFromPos(const Eigen::Vector3f& p) const {
+  if (cascades_ == 1) return 0;
   const float maxval = (p.array() - 0.5f).abs().maxCoeff();
-  int exponent;
-  std::frexp(maxval, &exponent);  // maxval = f * 2^exponent, f in [0.5, 1)
-  return std::clamp(exponent + 1, 0, cascades_ - 1);
+  if (!std::isfinite(maxval)) return cascades_ - 1;
+  // maxval = f * 2^exponent, f in [0.5, 1) (frexp).
+  return std::clamp(frexpExponent(maxval) + 1, 0, cascades_ - 1);
 }
 
 int OccupancyGrid::mipFromDt(float dt, const Eigen::Vector3f& p) const {
-  int exponent;
-  std::frexp(dt * kRes, &exponent);
+  if (cascades_ == 1) return 0;
+  const float x = dt * kRes;
+  const int exponent = std::isfinite(x) && x >= 0.f ? frexpExponent(x) : cascades_ - 1;
   return std::clamp(std::max(exponent, mipFromPos(p)), 0, cascades_ - 1);
 }
 
 bool OccupancyGrid::occupied(const Eigen::Vector3f& p, int mip) const {
-  const float inv = std::ldexp(1.f, -mip);
+  const float inv = invCascadeScale(mip);
   int c[3];
   for (int a = 0; a < 3; ++a) {
     const float u = ((p[a] - 0.5f) * inv + 0.5f) * kRes;
@@ -52,6 +58,7 @@ void OccupancyGrid::fill(float value) {
   std::fill(values_.begin(), values_.end(), value);
   threshold_ = 0;
   std::fill(bits_.begin(), bits_.end(), ~uint64_t(0));
+  for (auto& c : coarse_) std::fill(c.begin(), c.end(), ~uint64_t(0));
 }
 
 void OccupancyGrid::setValues(std::vector<float> values, float threshold) {
@@ -82,6 +89,36 @@ void OccupancyGrid::rebuildBits() {
           const size_t j = size_t(m) * kCells + cellIndex(h / 2 + x / 2, h / 2 + y / 2, h / 2 + z / 2);
           bits_[j / 64] |= uint64_t(1) << (j % 64);
         }
+  }
+  rebuildCoarse();
+}
+
+void OccupancyGrid::rebuildCoarse() {
+  for (int k = 1; k <= 2; ++k) {
+    const int sh = kBlockShift[k], r = kRes >> sh;
+    const size_t per = size_t(r) * size_t(r) * size_t(r);
+    std::vector<uint64_t>& c = coarse_[k - 1];
+    std::fill(c.begin(), c.end(), 0);
+    for (int m = 0; m < cascades_; ++m) {
+      const uint64_t* b = bits_.data() + size_t(m) * kCells / 64;
+      // A 64-bit word of cell bits is 64 consecutive x at one (y, z): blocks of 4 or 16 cells in x.
+      for (int z = 0; z < kRes; ++z)
+        for (int y = 0; y < kRes; ++y) {
+          const uint32_t row = cellIndex(0, y, z) / 64;
+          for (int wx = 0; wx < kRes / 64; ++wx) {
+            uint64_t word = b[row + uint32_t(wx)];
+            while (word) {
+              const int x = wx * 64 + __builtin_ctzll(word);
+              const size_t i = size_t(m) * per + size_t(x >> sh) + size_t(r) * (size_t(y >> sh) + size_t(r) * size_t(z >> sh));
+              c[i / 64] |= uint64_t(1) << (i % 64);
+              // Skip the rest of this block's cells in the word.
+              const int next = ((x >> sh) + 1) << sh;
+              if (next - wx * 64 >= 64) break;
+              word &= ~((uint64_t(1) << (next - wx * 64)) - 1);
+            }
+          }
+        }
+    }
   }
 }
 

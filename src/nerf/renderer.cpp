@@ -13,12 +13,19 @@
 namespace nerfslam::nerf {
 namespace {
 
-constexpr int kTile = 512;
+// Pixels per work item: a 32x16 block (neighbouring rays share occupancy cells and table lines).
+constexpr int kBlockW = 32, kBlockH = 16;
 constexpr float kNormalWeight = 1e-3f;  // samples below this weight do not contribute to normals
+// Colour is evaluated only for samples that matter: a sample whose compositing weight is below
+// kColorMinWeight is left out while the ray's left-out weight stays within kColorSkipBudget, so
+// the colour differs from compositing every sample by at most kColorSkipBudget (of a [0,1] range;
+// a quarter of an 8-bit level). Depth, opacity and uncertainty use every sample.
+constexpr float kColorMinWeight = 1e-4f;
+constexpr float kColorSkipBudget = 1e-3f;
 
 struct RayState {
   int pixel;
-  float T = 1.f, rgb[3] = {0, 0, 0}, dsum = 0, d2sum = 0, n[3] = {0, 0, 0};
+  float T = 1.f, rgb[3] = {0, 0, 0}, dsum = 0, d2sum = 0, n[3] = {0, 0, 0}, skipped = 0;
   bool alive = true;
 };
 
@@ -49,8 +56,8 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
   const Eigen::Vector3f z_axis = T_world_cam.rotationMatrix().col(2).cast<float>();
   const float inv_scale = float(1.0 / model.scene.scale);
   const float bg[3] = {float(opt.background[0]), float(opt.background[1]), float(opt.background[2])};
-  const int n_pixels = W * H;
-  const int n_tiles = (n_pixels + kTile - 1) / kTile;
+  const int bx_count = (W + kBlockW - 1) / kBlockW, by_count = (H + kBlockH - 1) / kBlockH;
+  const int n_tiles = bx_count * by_count;
   std::atomic<int> next_tile{0};
   std::atomic<int64_t> total_samples{0};
 
@@ -58,46 +65,51 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
     std::vector<RayMarcher> marchers;
     std::vector<Ray> rays;
     std::vector<RayState> st;
-    std::vector<float> pos, fpos, dir, t, dt, sigma, rgb, grad;
-    std::vector<int> owner;         // ray of each batch sample
-    std::vector<int> g_idx, g_ray;  // samples whose normals are needed
+    std::vector<float> pos, fpos, t, dt, sigma, geo, grad;
+    std::vector<int> owner;                // ray of each batch sample
+    std::vector<int> c_idx;                // samples whose colour is evaluated
+    std::vector<float> c_w, c_geo, c_dir, c_rgb;
+    std::vector<int> g_idx, g_ray;         // samples whose normals are needed
     std::vector<float> g_w, g_pos;
     int64_t samples = 0;
     for (int tile = next_tile++; tile < n_tiles; tile = next_tile++) {
-      const int p0 = tile * kTile, p1 = std::min(n_pixels, p0 + kTile);
+      const int x0 = (tile % bx_count) * kBlockW, y0 = (tile / bx_count) * kBlockH;
+      const int x1 = std::min(W, x0 + kBlockW), y1 = std::min(H, y0 + kBlockH);
       marchers.clear();
       rays.clear();
       st.clear();
-      for (int p = p0; p < p1; ++p) {
-        const Ray r = gen.ray(p % W, p / W);
-        rays.push_back(r);
-        marchers.emplace_back(r, *model.grid, model.scene, march, 0.5f);
-        RayState s;
-        s.pixel = p;
-        s.alive = !marchers.back().done();
-        st.push_back(s);
-      }
+      for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x) {
+          const Ray r = gen.ray(x, y);
+          rays.push_back(r);
+          marchers.emplace_back(r, *model.grid, model.scene, march, 0.5f);
+          RayState s;
+          s.pixel = y * W + x;
+          s.alive = !marchers.back().done();
+          st.push_back(s);
+        }
       for (int round = 0;; ++round) {
         const int chunk = round == 0 ? 8 : round == 1 ? 16 : 32;
         const size_t cap = st.size() * size_t(chunk);
-        for (auto* v : {&pos, &dir, &fpos, &rgb}) v->resize(3 * cap);
+        for (auto* v : {&pos, &fpos}) v->resize(3 * cap);
         for (auto* v : {&t, &dt, &sigma}) v->resize(cap);
+        geo.resize(cap * kDensityOutputs);
         owner.clear();
         int used = 0;
         for (size_t i = 0; i < st.size(); ++i) {
           if (!st[i].alive) continue;
           const int n = marchers[i].next(chunk, pos.data() + 3 * used, t.data() + used, dt.data() + used);
-          for (int k = 0; k < n; ++k) {
-            owner.push_back(int(i));
-            std::copy(rays[i].dir.data(), rays[i].dir.data() + 3, dir.data() + 3 * (used + k));
-          }
+          owner.insert(owner.end(), size_t(n), int(i));
           used += n;
           if (n == 0) st[i].alive = false;
         }
         if (used == 0) break;
         samples += used;
         model.toFieldCoords(pos.data(), size_t(used), fpos.data());
-        model.field->query(fpos.data(), dir.data(), size_t(used), sigma.data(), rgb.data());
+        // Density first; colour only for the samples that contribute.
+        model.field->queryDensityOutputs(fpos.data(), size_t(used), sigma.data(), geo.data());
+        c_idx.clear();
+        c_w.clear();
         g_idx.clear();
         g_ray.clear();
         g_w.clear();
@@ -106,14 +118,39 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
           if (s.T < kMinTransmittance) continue;
           const float alpha = 1.f - std::exp(-sigma[size_t(k)] * dt[size_t(k)]);
           const float w = s.T * alpha;
-          for (int c = 0; c < 3; ++c) s.rgb[c] += w * rgb[3 * size_t(k) + c];
           s.dsum += w * t[size_t(k)];
           s.d2sum += w * t[size_t(k)] * t[size_t(k)];
           s.T *= 1.f - alpha;
+          if (w < kColorMinWeight && s.skipped + w <= kColorSkipBudget) {
+            s.skipped += w;
+          } else {
+            c_idx.push_back(k);
+            c_w.push_back(w);
+          }
           if (opt.normals && w > kNormalWeight) {
             g_idx.push_back(k);
             g_ray.push_back(owner[size_t(k)]);
             g_w.push_back(w);
+          }
+        }
+        if (!c_idx.empty()) {
+          const size_t nc = c_idx.size();
+          c_geo.resize(nc * kDensityOutputs);
+          c_dir.resize(3 * nc);
+          c_rgb.resize(3 * nc);
+          for (size_t j = 0; j < nc; ++j) {
+            const size_t k = size_t(c_idx[j]);
+            std::copy(geo.data() + k * kDensityOutputs, geo.data() + (k + 1) * kDensityOutputs,
+                      c_geo.data() + j * kDensityOutputs);
+            const Eigen::Vector3f& d = rays[size_t(owner[k])].dir;
+            c_dir[3 * j] = d.x();
+            c_dir[3 * j + 1] = d.y();
+            c_dir[3 * j + 2] = d.z();
+          }
+          model.field->queryColor(c_geo.data(), c_dir.data(), nc, c_rgb.data());
+          for (size_t j = 0; j < nc; ++j) {
+            RayState& s = st[size_t(owner[size_t(c_idx[j])])];
+            for (int c = 0; c < 3; ++c) s.rgb[c] += c_w[j] * c_rgb[3 * j + size_t(c)];
           }
         }
         if (!g_idx.empty()) {

@@ -80,5 +80,67 @@ TEST(Adam, SparseEntryUsesItsOwnStepCounter) {
   EXPECT_FLOAT_EQ(p[1], q[1]);
 }
 
+TEST(Adam, SparseLevelSimdMatchesScalarAndEntryRule) {
+  // One level of 1000 entries (a multiple of 8, as every level is): random touched bits, some
+  // touched entries with an exactly zero summed gradient (skipped), step counters on both sides of
+  // the bias table's end.
+  const size_t n = 1000;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  AdamOptions opt;
+  AdamBiasTable bias(opt);
+  std::vector<float> p0(2 * n), m0(2 * n), v0(2 * n), g0(2 * n, 0.f);
+  std::vector<uint32_t> s0(n);
+  std::vector<uint64_t> t0((n + 63) / 64, 0);
+  for (size_t e = 0; e < n; ++e) {
+    for (int f = 0; f < 2; ++f) {
+      p0[2 * e + f] = u(rng);
+      m0[2 * e + f] = 1e-2f * u(rng);
+      v0[2 * e + f] = 1e-4f * std::abs(u(rng));
+    }
+    s0[e] = uint32_t(rng() % 3) == 0 ? uint32_t(AdamBiasTable::kSize + rng() % 100) : uint32_t(rng() % 50);
+    if (rng() % 3 == 0) {
+      t0[e / 64] |= uint64_t(1) << (e % 64);
+      if (rng() % 5 != 0) {
+        g0[2 * e] = 1e-2f * u(rng);
+        g0[2 * e + 1] = rng() % 4 == 0 ? 0.f : 1e-2f * u(rng);
+      }
+    }
+  }
+  // Reference: adamEntry<2> entry by entry.
+  std::vector<float> pr(p0), mr(m0), vr(v0);
+  std::vector<uint32_t> sr(s0);
+  for (size_t e = 0; e < n; ++e) {
+    if (!((t0[e / 64] >> (e % 64)) & 1)) continue;
+    if (g0[2 * e] == 0.f && g0[2 * e + 1] == 0.f) continue;
+    adamEntry<2>(&pr[2 * e], &mr[2 * e], &vr[2 * e], &g0[2 * e], &sr[e], 1e-2f, opt, bias);
+  }
+  auto check = [&](bool simd) {
+    std::vector<float> p(p0), m(m0), v(v0), g(g0);
+    std::vector<uint32_t> st(s0);
+    std::vector<uint64_t> t(t0);
+    if (simd)
+      adamSparseLevel(p.data(), m.data(), v.data(), g.data(), t.data(), st.data(), n, 1e-2f, opt, bias);
+    else
+      adamSparseLevelScalar(p.data(), m.data(), v.data(), g.data(), t.data(), st.data(), n, 1e-2f, opt, bias);
+    EXPECT_EQ(st, sr);
+    for (uint64_t w : t) ASSERT_EQ(w, 0u);
+    for (float x : g) ASSERT_EQ(x, 0.f);
+    for (size_t i = 0; i < 2 * n; ++i) {
+      ASSERT_NEAR(p[i], pr[i], 1e-6f) << i;
+      ASSERT_NEAR(m[i], mr[i], 1e-9f) << i;
+      ASSERT_NEAR(v[i], vr[i], 1e-11f) << i;
+      if (!simd) {
+        ASSERT_EQ(p[i], pr[i]) << i;  // the scalar reference is adamEntry itself
+      }
+    }
+  };
+  check(false);
+  forEachSimdTarget([&](const std::string& name) {
+    SCOPED_TRACE(name);
+    check(true);
+  });
+}
+
 }  // namespace
 }  // namespace nerfslam::nerf

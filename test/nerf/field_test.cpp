@@ -120,6 +120,29 @@ TEST(RadianceField, TrainingForwardMatchesInference) {
   }
 }
 
+TEST(RadianceField, TwoStageInferenceEqualsQuery) {
+  RadianceField f(smallConfig(), 4);
+  randomiseTable(f, 0.5f, 7);
+  const size_t n = 150;
+  const Batch b = randomBatch(n, 8);
+  std::vector<float> s1(n), c1(3 * n), s2(n), geo(n * kDensityOutputs), c2(3 * n);
+  f.query(b.pos.data(), b.dir.data(), n, s1.data(), c1.data());
+  f.queryDensityOutputs(b.pos.data(), n, s2.data(), geo.data());
+  // Colour of a subset, in another order and batch size (the renderer's use).
+  std::vector<size_t> pick;
+  for (size_t i = n; i-- > 0;)
+    if (i % 3 != 1) pick.push_back(i);
+  std::vector<float> g(pick.size() * kDensityOutputs), d(3 * pick.size()), c(3 * pick.size());
+  for (size_t j = 0; j < pick.size(); ++j) {
+    std::copy(&geo[pick[j] * kDensityOutputs], &geo[(pick[j] + 1) * kDensityOutputs], &g[j * kDensityOutputs]);
+    std::copy(&b.dir[3 * pick[j]], &b.dir[3 * pick[j] + 3], &d[3 * j]);
+  }
+  f.queryColor(g.data(), d.data(), pick.size(), c.data());
+  for (size_t i = 0; i < n; ++i) EXPECT_EQ(s1[i], s2[i]);
+  for (size_t j = 0; j < pick.size(); ++j)
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(c[3 * j + size_t(k)], c1[3 * pick[j] + size_t(k)]);
+}
+
 TEST(RadianceField, NonFinitePositionsAreClampedNotFatal) {
   RadianceField f(smallConfig(), 3);
   const float nan = std::nanf(""), inf = INFINITY;

@@ -26,6 +26,9 @@
 // Change log of this header (kept stable for the pipeline engineer):
 //   v1 (04:15 UTC): initial API.
 //   v2 (04:20 UTC): added gradients(Gradients&) (read access for tests/diagnostics). Additive.
+//   v3: the hash-grid gradient is deferred to step() (scattered level by level there; Gradients
+//       no longer hold a dense copy of the table); added lastStepProfile(), queryDensityOutputs()
+//       and queryColor(). Additive.
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -131,6 +134,12 @@ class RadianceField {
   // ---- Inference (thread-safe). pos: n*3 in [0,1]^3 (clamped); dir: n*3 unit vectors.
   void queryDensity(const float* pos, size_t n, float* sigma) const;
   void query(const float* pos, const float* dir, size_t n, float* sigma, float* rgb) const;
+  // Two-stage inference (the renderer evaluates colour only where a sample is visible):
+  // queryDensityOutputs gives sigma (n) and the density network's kDensityOutputs outputs per
+  // sample (geo[i * kDensityOutputs + k]; k = 0 is the log-density); queryColor gives rgb (n*3)
+  // from those outputs and unit directions. Together they equal query() bit for bit.
+  void queryDensityOutputs(const float* pos, size_t n, float* sigma, float* geo) const;
+  void queryColor(const float* geo, const float* dir, size_t n, float* rgb) const;
   // d sigma / d pos (n*3), in unit-cube coordinates; normals are -grad / |grad|.
   void densityGradient(const float* pos, size_t n, float* grad) const;
 
@@ -153,6 +162,14 @@ class RadianceField {
   std::vector<FloatArray> gradients(Gradients& grads) const;
   // Number of optimiser steps taken so far.
   uint64_t stepCount() const;
+  // Where the last step() spent its time (CPU seconds summed over its workers), for benchmarks:
+  // the MLP update, the hash-grid scatter (the encoding's backward, deferred to step()), the
+  // hash-grid Adam update, and the number of hash entries updated.
+  struct StepProfile {
+    double mlp_seconds = 0, scatter_seconds = 0, adam_seconds = 0;
+    size_t entries_updated = 0;
+  };
+  const StepProfile& lastStepProfile() const;
 
   // ---- Parameters, for the model file. Weight matrices are row-major [in][out]:
   //   "hash_grid"  levels concatenated, entry-major [entry][2] (offsets: hash_grid.h levels())

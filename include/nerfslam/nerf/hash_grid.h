@@ -95,6 +95,17 @@ void hashEncodeBackward(const HashGridView& grid, const float* pos, size_t n, co
 void hashEncodeBackwardScalar(const HashGridView& grid, const float* pos, size_t n, const float* d_enc,
                               float* grad_table, uint64_t* touched);
 
+// Backward of one level l (the training path: the optimiser scatters level by level, so each
+// level's gradient buffer stays in cache and levels run on different threads without locks):
+// grad_level[2*e + f] += sum over samples and corners of w * d_level[2*s + f], for entries e
+// relative to the level (size levels[l].size), d_level sample-major [s][2]. touched_level is a
+// bitmap over the level's entries (bit e set when entry e received a non-zero sample gradient, the
+// same rule as hashEncodeBackward). Contributions are added in sample order, corners 0..7.
+void hashEncodeBackwardLevel(const HashGridView& grid, int level, const float* pos, size_t n, const float* d_level,
+                             float* grad_level, uint64_t* touched_level);
+void hashEncodeBackwardLevelScalar(const HashGridView& grid, int level, const float* pos, size_t n,
+                                   const float* d_level, float* grad_level, uint64_t* touched_level);
+
 // d enc / d pos contracted with d_enc (sample-major [s][2L]): out[s*3 + d] = sum_k d_enc[s][k] *
 // d enc_k / d pos_d. Scalar (used for normals, not in the training loop).
 void hashEncodePositionGradient(const HashGridView& grid, const float* pos, size_t n, const float* d_enc, float* out);

@@ -11,6 +11,7 @@
 // so a coarse lookup never hides a finely occupied cell.
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <functional>
 #include <vector>
 
@@ -50,10 +51,29 @@ class OccupancyGrid {
     const uint32_t i = cellIndex(x, y, z);
     return (bits_[size_t(mip) * kCells / 64 + i / 64] >> (i % 64)) & 1u;
   }
+  // Coarse occupancy for skipping empty space in larger jumps: block (x, y, z) of level k (k = 1:
+  // blocks of 4^3 cells, 32^3 blocks per cascade; k = 2: blocks of 16^3 cells, 8^3 per cascade) is
+  // occupied when any of its cells is. Kept in sync with the cell bits.
+  static constexpr int kBlockShift[3] = {0, 2, 4};
+  bool occupiedBlock(int mip, int level, int x, int y, int z) const {
+    const int r = kRes >> kBlockShift[level];
+    const uint32_t i = uint32_t(x) + uint32_t(r) * (uint32_t(y) + uint32_t(r) * uint32_t(z));
+    return (coarse_[size_t(level - 1)][size_t(mip) * size_t(r * r * r) / 64 + i / 64] >> (i % 64)) & 1u;
+  }
   // Smallest cascade whose cube contains p (clamped to the last).
   int mipFromPos(const Eigen::Vector3f& p) const;
   // As instant-ngp: also coarse enough that a step of dt is not much smaller than a cell.
   int mipFromDt(float dt, const Eigen::Vector3f& p) const;
+  // frexp's exponent for finite x >= 0 (x = f * 2^e, f in [0.5, 1); 0 for x = 0), without libm.
+  static int frexpExponent(float x) {
+    uint32_t b;
+    std::memcpy(&b, &x, 4);
+    const int e = int((b >> 23) & 0xffu);
+    if (e == 0) return b == 0 ? 0 : -126;  // zero; subnormals (only ever clamped to mip 0)
+    return e - 126;
+  }
+  // 2^-mip, exactly.
+  static float invCascadeScale(int mip) { return 1.f / float(1u << mip); }
 
   // Sets every value to `value` and marks every cell occupied regardless of it (start of training:
   // everything is a candidate until the first update).
@@ -71,11 +91,13 @@ class OccupancyGrid {
 
  private:
   void rebuildBits();
+  void rebuildCoarse();
 
   int cascades_;
   float threshold_ = 0;
   std::vector<float> values_;
   std::vector<uint64_t> bits_;  // cascades * kCells bits
+  std::vector<uint64_t> coarse_[2];  // block levels 1 and 2 (see occupiedBlock)
 };
 
 }  // namespace nerfslam::nerf

@@ -8,7 +8,9 @@
 // tested: occupied -> emit a sample at t with length dt; empty -> jump to the first step position at
 // or past the next cell boundary along the ray (DDA skip). Jumps are whole steps, so samples always
 // land on the same step lattice as an unskipped march: skipping never drops an occupied cell's
-// sample. With cone_angle = 0, t_k = t_0 + k * dt exactly (no accumulated rounding).
+// sample. With cone_angle = 0, t_k = t_0 + k * dt exactly (no accumulated rounding). In empty space
+// the jump goes to the exit of the largest empty block around the cell (16^3 or 4^3 cells, see
+// OccupancyGrid::occupiedBlock) rather than of the cell alone: fewer tests, the same samples.
 #include "nerfslam/nerf/occupancy.h"
 #include "nerfslam/nerf/rays.h"
 
@@ -34,7 +36,8 @@ class RayMarcher {
   float tFar() const { return t_far_; }
 
  private:
-  float distanceToNextCell(const Eigen::Vector3f& p, int mip) const;
+  // Distance along the ray from p to where it leaves its block of 2^shift cells at cascade mip.
+  float distanceToNextCell(const Eigen::Vector3f& p, int mip, int shift = 0) const;
 
   Ray ray_;
   Eigen::Vector3f inv_dir_;
