@@ -421,6 +421,7 @@ BaResult LocalMapper::globalBundleAdjustment(int iterations) {
   ba.max_iterations = iterations;
   ba.refine_iterations = iterations / 2;
   ba.max_solver_time_s = std::max(ba.max_solver_time_s, 30.0);
+  ba.function_tolerance = std::min(ba.function_tolerance, 1e-6);  // the final map: converge fully
   std::vector<PointId> pts;
   for (const auto& p : map_.points()) pts.push_back(p.id);
   return runBa(free, fixed, pts, ba);

@@ -36,7 +36,8 @@ struct BundleAdjustmentOptions {
   int max_iterations = 5;      // per solve (ORB-SLAM local BA: 5 + 10)
   int refine_iterations = 10;  // second solve after outlier removal (0: none)
   int num_threads = 1;
-  double max_solver_time_s = 1.0;  // per solve
+  double max_solver_time_s = 1.0;    // per solve
+  double function_tolerance = 1e-3;  // a solve stops when an iteration lowers the cost by less (relative)
 
   template <class V>
   void visit(V& v) {
@@ -48,6 +49,8 @@ struct BundleAdjustmentOptions {
       check::range(0, 1000));
     v("num_threads", num_threads, "Ceres threads", check::range(1, 64));
     v("max_solver_time_s", max_solver_time_s, "Wall-clock limit of one solve", check::positive<double>());
+    v("function_tolerance", function_tolerance, "Relative cost decrease below which a solve stops",
+      check::positive<double>());
   }
 };
 
