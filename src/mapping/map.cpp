@@ -80,7 +80,7 @@ KeyframeId Map::addKeyframe(Keyframe kf) {
   auto& stored = keyframes_.emplace(id, std::move(kf)).first->second;
   for (PointId pid : stored.points)
     if (pid != kNoPoint) updateAppearanceLocked(points_.at(pid));
-  bump();
+  bumpStructure();
   return id;
 }
 
@@ -102,7 +102,7 @@ PointId Map::addPoint(const Eigen::Vector3d& position, const std::map<KeyframeId
   for (const auto& [kid, idx] : p.observations) keyframes_.at(kid).points[idx] = p.id;
   auto& stored = points_.emplace(p.id, std::move(p)).first->second;
   updateAppearanceLocked(stored);
-  bump();
+  bumpStructure();
   return stored.id;
 }
 
@@ -116,7 +116,7 @@ bool Map::addObservation(PointId pid, KeyframeId kid, int idx) {
   kit->second.points[idx] = pid;
   pit->second.observations[kid] = idx;
   updateAppearanceLocked(pit->second);
-  bump();
+  bumpStructure();
   return true;
 }
 
@@ -137,7 +137,7 @@ void Map::eraseObservationLocked(PointId pid, KeyframeId kid) {
 void Map::eraseObservation(PointId pid, KeyframeId kid) {
   auto lock = lockExclusive(mutex_);
   eraseObservationLocked(pid, kid);
-  bump();
+  bumpStructure();
 }
 
 void Map::erasePointLocked(PointId pid) {
@@ -153,7 +153,7 @@ void Map::erasePointLocked(PointId pid) {
 void Map::erasePoint(PointId pid) {
   auto lock = lockExclusive(mutex_);
   erasePointLocked(pid);
-  bump();
+  bumpStructure();
 }
 
 void Map::eraseKeyframe(KeyframeId kid, KeyframeId parent) {
@@ -167,7 +167,7 @@ void Map::eraseKeyframe(KeyframeId kid, KeyframeId parent) {
   for (PointId pid : pts)
     if (pid != kNoPoint) eraseObservationLocked(pid, kid);
   keyframes_.erase(kid);
-  bump();
+  bumpStructure();
 }
 
 void Map::fusePoints(PointId from, PointId to) {
@@ -189,7 +189,7 @@ void Map::fusePoints(PointId from, PointId to) {
   tit->second.found += fit->second.found;
   points_.erase(fit);
   updateAppearanceLocked(points_.at(to));
-  bump();
+  bumpStructure();
 }
 
 void Map::updateAppearanceLocked(MapPoint& p) {
@@ -251,7 +251,7 @@ void Map::updatePointAppearance(PointId pid) {
   auto pit = points_.find(pid);
   if (pit == points_.end()) return;
   updateAppearanceLocked(pit->second);
-  bump();
+  bumpStructure();
 }
 
 void Map::setKeyframePose(KeyframeId id, const SE3& T) {
@@ -285,24 +285,49 @@ void Map::applyUpdate(const MapUpdate& u) {
     }
     if (n.norm() > 0) pit->second.normal = n.normalized();
   }
-  bump();
+  if (u.erase_observations.empty() && u.erase_points.empty())
+    bump();
+  else
+    bumpStructure();
 }
 
-void Map::increaseVisible(const std::vector<PointId>& pids) {
-  auto lock = lockExclusive(mutex_);
-  for (PointId pid : pids) {
+void Map::applyStatisticsLocked(const std::vector<PointId>& visible, const std::vector<PointId>& found) {
+  for (PointId pid : visible) {
     auto it = points_.find(pid);
     if (it != points_.end()) ++it->second.visible;
   }
-}
-
-void Map::increaseFound(const std::vector<PointId>& pids) {
-  auto lock = lockExclusive(mutex_);
-  for (PointId pid : pids) {
+  for (PointId pid : found) {
     auto it = points_.find(pid);
     if (it != points_.end()) ++it->second.found;
   }
 }
+
+void Map::updateStatistics(const std::vector<PointId>& visible, const std::vector<PointId>& found, bool wait) {
+  std::unique_lock<std::shared_mutex> lock(mutex_, std::try_to_lock);
+  if (!lock.owns_lock()) {
+    if (!wait) {  // a writer holds the map: queue, count at a later call
+      std::lock_guard<std::mutex> q(pending_mutex_);
+      pending_visible_.insert(pending_visible_.end(), visible.begin(), visible.end());
+      pending_found_.insert(pending_found_.end(), found.begin(), found.end());
+      return;
+    }
+    lock = lockExclusive(mutex_);
+  } else {
+    ++t_lock_wait.acquisitions;
+  }
+  std::vector<PointId> queued_visible, queued_found;
+  {
+    std::lock_guard<std::mutex> q(pending_mutex_);
+    queued_visible.swap(pending_visible_);
+    queued_found.swap(pending_found_);
+  }
+  applyStatisticsLocked(queued_visible, queued_found);
+  applyStatisticsLocked(visible, found);
+}
+
+void Map::increaseVisible(const std::vector<PointId>& pids) { updateStatistics(pids, {}, false); }
+void Map::increaseFound(const std::vector<PointId>& pids) { updateStatistics({}, pids, false); }
+void Map::flushTrackingStatistics() { updateStatistics({}, {}, true); }
 
 void Map::transform(const Sim3& T) {
   auto lock = lockExclusive(mutex_);
@@ -317,7 +342,7 @@ void Map::clear() {
   keyframes_.clear();
   points_.clear();
   retired_.clear();
-  bump();
+  bumpStructure();
 }
 
 std::pair<std::vector<Keyframe>, std::vector<MapPoint>> Map::snapshot() const {
@@ -374,7 +399,7 @@ void Map::restore(std::vector<Keyframe> keyframes, std::vector<MapPoint> points)
   retired_.clear();
   next_kf_ = std::max(next_kf_, next_kf);
   next_point_ = std::max(next_point_, next_point);
-  bump();
+  bumpStructure();
 }
 
 std::optional<SE3> Map::resolvePose(KeyframeId id) const {
@@ -487,6 +512,95 @@ std::vector<PointId> Map::pointsSeenBy(const std::vector<KeyframeId>& kfs) const
       if (pid != kNoPoint && points_.count(pid)) ids.insert(pid);
   }
   return {ids.begin(), ids.end()};
+}
+
+bool Map::localMapForTracking(KeyframeId ref, int max_keyframes, TrackingLocalMap* out, bool wait) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_, std::try_to_lock);
+  if (!lock.owns_lock()) {
+    if (!wait) return false;
+    lock = lockShared(mutex_);
+  } else {
+    ++t_lock_wait.acquisitions;
+  }
+  auto rit = keyframes_.find(ref);
+  if (rit == keyframes_.end()) return false;
+  TrackingLocalMap& m = *out;
+  m.ref = ref;
+  m.structure_version = structureVersion();
+  m.version = version();
+  m.keyframes.assign(1, ref);
+  // Covisible keyframes of ref by shared points (ties: newer first), as covisibleKeyframes().
+  std::unordered_map<KeyframeId, int> counts;
+  for (PointId pid : rit->second.points) {
+    if (pid == kNoPoint) continue;
+    auto pit = points_.find(pid);
+    if (pit == points_.end()) continue;
+    for (const auto& [other, idx] : pit->second.observations)
+      if (other != ref) ++counts[other];
+  }
+  std::vector<std::pair<KeyframeId, int>> cov(counts.begin(), counts.end());
+  std::sort(cov.begin(), cov.end(), [](const auto& a, const auto& b) {
+    return a.second != b.second ? a.second > b.second : a.first > b.first;
+  });
+  for (const auto& [k, c] : cov) {
+    if (static_cast<int>(m.keyframes.size()) >= max_keyframes) break;
+    m.keyframes.push_back(k);
+  }
+  if (!keyframes_.empty()) {
+    const KeyframeId last = keyframes_.rbegin()->first;
+    if (std::find(m.keyframes.begin(), m.keyframes.end(), last) == m.keyframes.end()) m.keyframes.push_back(last);
+  }
+  m.keyframe_poses.clear();
+  m.keyframe_num_points.clear();
+  std::vector<PointId> ids;
+  for (KeyframeId k : m.keyframes) {
+    const Keyframe& kf = keyframes_.at(k);
+    m.keyframe_poses.push_back(kf.T_world_cam);
+    const size_t before = ids.size();
+    for (PointId pid : kf.points)
+      if (pid != kNoPoint) ids.push_back(pid);
+    m.keyframe_num_points.push_back(static_cast<int>(ids.size() - before));
+  }
+  std::sort(ids.begin(), ids.end());
+  ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+  m.points.clear();
+  m.points.reserve(ids.size());
+  m.observer_begin.assign(1, 0);
+  m.observer_begin.reserve(ids.size() + 1);
+  m.observers.clear();
+  for (PointId pid : ids) {
+    auto pit = points_.find(pid);
+    if (pit == points_.end() || pit->second.descriptor.empty()) continue;
+    const MapPoint& p = pit->second;
+    TrackingMapPoint t;
+    t.id = static_cast<uint64_t>(p.id);
+    t.p_world = p.position;
+    t.descriptor = p.descriptor;  // shares the buffer: descriptors are replaced, never written in place
+    m.points.push_back(std::move(t));
+    for (const auto& [k, idx] : p.observations) m.observers.push_back(k);
+    m.observer_begin.push_back(static_cast<int>(m.observers.size()));
+  }
+  return true;
+}
+
+bool Map::refreshLocalMap(TrackingLocalMap* m, bool wait) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_, std::try_to_lock);
+  if (!lock.owns_lock()) {
+    if (!wait) return false;
+    lock = lockShared(mutex_);
+  } else {
+    ++t_lock_wait.acquisitions;
+  }
+  m->version = version();
+  for (size_t i = 0; i < m->keyframes.size(); ++i) {
+    auto kit = keyframes_.find(m->keyframes[i]);
+    if (kit != keyframes_.end()) m->keyframe_poses[i] = kit->second.T_world_cam;
+  }
+  for (TrackingMapPoint& t : m->points) {
+    auto pit = points_.find(static_cast<PointId>(t.id));
+    if (pit != points_.end()) t.p_world = pit->second.position;
+  }
+  return true;
 }
 
 }  // namespace nerfslam

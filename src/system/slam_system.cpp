@@ -53,6 +53,7 @@ SlamSystem::SlamSystem(const Camera& camera, SystemOptions options, std::unique_
            camera_.width, camera_.height);
     map_ = std::move(map);
     map_mode_ = mode;
+    localization_only_ = mode == MapMode::kLocalize;
     state_ = TrackingState::kLost;
     initialized_once_ = true;
   }
@@ -75,9 +76,8 @@ void SlamSystem::reset() {
   initializer_->reset();
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
   state_ = TrackingState::kNotInitialized;
-  local_points_.clear();
-  local_keyframes_.clear();
-  local_version_ = ~0ull;
+  local_ = TrackingLocalMap{};
+  local_stale_frames_ = 0;
   reference_ = -1;
   last_matches_.clear();
   pre_init_frames_.clear();
@@ -149,7 +149,7 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
       const double s = double(f->id - r.ref_frame_id) / double(r.cur_frame_id - r.ref_frame_id);
       const SE3 prior = SE3::interpolate(T0, T_cur, s);
       tracker_->setPose(prior);
-      const TrackingResult tr = tracker_->track(*f, local_points_, &prior);
+      const TrackingResult tr = tracker_->track(*f, local_.points, &prior);
       if (tr.quality == TrackingQuality::kLost) continue;
       for (auto& prev : records_)
         if (prev.index == f->id && !prev.tracked) {
@@ -179,11 +179,15 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
 }
 
 KeyframeId SlamSystem::chooseReference(const std::vector<MapMatch>& matches) const {
-  std::vector<PointId> ids;
-  for (const auto& m : matches) ids.push_back(static_cast<PointId>(m.point_id));
+  // The matched points are local-map points: their observers are in local_ (no map lock needed).
   std::map<KeyframeId, int> counts;
-  for (const MapPoint& p : map_->points(ids))
-    for (const auto& [k, idx] : p.observations) ++counts[k];
+  for (const auto& m : matches) {
+    const auto it = std::lower_bound(local_.points.begin(), local_.points.end(), m.point_id,
+                                     [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });
+    if (it == local_.points.end() || it->id != m.point_id) continue;
+    const size_t i = static_cast<size_t>(it - local_.points.begin());
+    for (int k = local_.observer_begin[i]; k < local_.observer_begin[i + 1]; ++k) ++counts[local_.observers[size_t(k)]];
+  }
   KeyframeId best = -1;
   int best_count = 0;
   for (const auto& [k, c] : counts)
@@ -198,29 +202,31 @@ KeyframeId SlamSystem::chooseReference(const std::vector<MapMatch>& matches) con
   return best;
 }
 
-void SlamSystem::buildLocalMap(KeyframeId ref) {
-  const uint64_t version = map_->version();
-  if (version == local_version_ && ref == local_ref_) return;
-  local_version_ = version;
-  local_ref_ = ref;
-  local_keyframes_.clear();
-  if (ref >= 0) local_keyframes_.push_back(ref);
-  for (const auto& [k, w] : map_->covisibleKeyframes(ref)) {
-    if (static_cast<int>(local_keyframes_.size()) >= opt_.local_map_keyframes) break;
-    local_keyframes_.push_back(k);
-  }
-  // Always include the newest keyframe (its points are the freshest).
-  const auto last = map_->lastKeyframeId();
-  if (last && std::find(local_keyframes_.begin(), local_keyframes_.end(), *last) == local_keyframes_.end())
-    local_keyframes_.push_back(*last);
-  local_points_.clear();
-  for (const MapPoint& p : map_->points(map_->pointsSeenBy(local_keyframes_))) {
-    if (p.descriptor.empty()) continue;
-    TrackingMapPoint t;
-    t.id = static_cast<uint64_t>(p.id);
-    t.p_world = p.position;
-    t.descriptor = p.descriptor;
-    local_points_.push_back(std::move(t));
+void SlamSystem::buildLocalMap(KeyframeId ref, bool wait) {
+  // A frame may go on with the local map it has while the mapping thread holds the map's lock, at
+  // most this many frames in a row (then it waits: the local map must not fall far behind).
+  constexpr int kMaxStaleFrames = 8;
+  const bool must = wait || local_.empty() || local_stale_frames_ >= kMaxStaleFrames;
+  if (ref != local_.ref || map_->structureVersion() != local_.structure_version) {
+    TrackingLocalMap m;
+    if (map_->localMapForTracking(ref, opt_.local_map_keyframes, &m, must)) {
+      local_ = std::move(m);
+      local_stale_frames_ = 0;
+      return;
+    }
+    if (!must) {  // the lock was taken, or ref is gone: go on with what we have for now
+      ++local_stale_frames_;
+      return;
+    }
+    // `ref` is no longer in the map (culled): build around the newest keyframe.
+    const auto last = map_->lastKeyframeId();
+    if (last && map_->localMapForTracking(*last, opt_.local_map_keyframes, &m, true)) local_ = std::move(m);
+    local_stale_frames_ = 0;
+  } else if (map_->version() != local_.version) {
+    if (map_->refreshLocalMap(&local_, must))
+      local_stale_frames_ = 0;
+    else
+      ++local_stale_frames_;
   }
 }
 
@@ -240,7 +246,12 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     return rec;
   };
 
+  const bool localize_only = localizationOnly();
   if (state_ == TrackingState::kNotInitialized) {
+    if (localize_only) {  // no map to localise in, and none may be built
+      rec.message = "localisation only: no map";
+      return finishRecord();
+    }
     if (frame->size() < 8) {
       rec.message = fmt::format("{} features: nothing to initialise from", frame->size());
       last_init_message_ = rec.message;
@@ -259,10 +270,8 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   }
 
   ++frames_since_keyframe_;
-  KeyframeId ref = reference_;
-  if (!map_->keyframe(ref)) ref = chooseReference(last_matches_);
-  buildLocalMap(ref);
-  TrackingResult res = tracker_->track(*frame, local_points_);
+  buildLocalMap(reference_, false);
+  TrackingResult res = tracker_->track(*frame, local_.points);
   if (res.quality == TrackingQuality::kLost) {
     // Relocalisation against the most recent keyframes.
     std::vector<RelocalizationCandidate> cands;
@@ -298,7 +307,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     if (rl.success) {
       tracker_->setPose(rl.T_world_cam);
       buildLocalMap(static_cast<KeyframeId>(rl.keyframe_id));
-      res = tracker_->track(*frame, local_points_, &rl.T_world_cam);
+      res = tracker_->track(*frame, local_.points, &rl.T_world_cam);
       if (res.quality != TrackingQuality::kLost) {
         ++relocalizations_;
         if (map_mode_ != MapMode::kSlam && relocalized_at_frame_ < 0) relocalized_at_frame_ = int64_t(index);
@@ -313,7 +322,8 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   if (res.quality == TrackingQuality::kLost) {
     if (state_ != TrackingState::kLost) spdlog::warn("frame {}: tracking lost ({})", index, rec.message);
     state_ = TrackingState::kLost;
-    if (static_cast<int>(map_->numKeyframes()) <= opt_.reset_if_lost_with_keyframes && map_mode_ == MapMode::kSlam) {
+    if (static_cast<int>(map_->numKeyframes()) <= opt_.reset_if_lost_with_keyframes && map_mode_ == MapMode::kSlam &&
+        !localize_only) {
       spdlog::warn("frame {}: lost with {} keyframes, reinitialising", index, map_->numKeyframes());
       reset();
       rec.message += " (map reset)";
@@ -323,10 +333,10 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   state_ = TrackingState::kTracking;
   last_matches_ = res.matches;
   // Statistics for point culling: visible = projects into the image, found = inlier match.
-  if (map_mode_ != MapMode::kLocalize) {
+  if (!localize_only) {
     std::vector<PointId> visible, found;
     const SE3 T_cw = res.T_world_cam.inverse();
-    for (const auto& p : local_points_) {
+    for (const auto& p : local_.points) {
       Eigen::Vector2d uv;
       if (camera_.projectInImage(T_cw * p.p_world, &uv)) visible.push_back(static_cast<PointId>(p.id));
     }
@@ -335,11 +345,19 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     map_->increaseFound(found);
   }
   reference_ = chooseReference(res.matches);
-  const auto ref_kf = map_->keyframe(reference_);
+  // The reference keyframe's pose and points from the local map (no keyframe copies on this thread).
+  const auto ref_it = std::find(local_.keyframes.begin(), local_.keyframes.end(), reference_);
+  const bool ref_local = ref_it != local_.keyframes.end();
+  const size_t ref_slot = static_cast<size_t>(ref_it - local_.keyframes.begin());
+  std::optional<SE3> ref_pose;
+  if (ref_local)
+    ref_pose = local_.keyframe_poses[ref_slot];
+  else
+    ref_pose = map_->resolvePose(reference_);
   rec.tracked = true;
   rec.T_world_cam = res.T_world_cam;
   rec.reference = reference_;
-  rec.T_ref_cam = ref_kf ? ref_kf->T_world_cam.inverse() * res.T_world_cam : res.T_world_cam;
+  rec.T_ref_cam = ref_pose ? ref_pose->inverse() * res.T_world_cam : res.T_world_cam;
 
   // Keyframe decision.
   KeyframeDecisionInput in;
@@ -348,22 +366,22 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   in.frames_since_last_keyframe = frames_since_keyframe_;
   in.median_scene_depth = res.median_depth > 0 ? res.median_depth : 1.0;
   double nearest = std::numeric_limits<double>::infinity();
-  for (KeyframeId k : local_keyframes_) {
-    const auto kf = map_->keyframe(k);
-    if (kf) nearest = std::min(nearest, (kf->centre() - res.T_world_cam.translation()).norm());
-  }
+  for (const SE3& T : local_.keyframe_poses) nearest = std::min(nearest, (T.translation() - res.T_world_cam.translation()).norm());
   in.distance_to_nearest_keyframe = std::isfinite(nearest) ? nearest : 0.0;
-  if (ref_kf) {
-    in.reference_keyframe_points = ref_kf->numTrackedPoints();
-    std::vector<PointId> ref_pts(ref_kf->points.begin(), ref_kf->points.end());
-    std::sort(ref_pts.begin(), ref_pts.end());
-    for (const auto& m : res.matches)
-      in.tracked_reference_points +=
-          std::binary_search(ref_pts.begin(), ref_pts.end(), static_cast<PointId>(m.point_id));
+  if (ref_local) {
+    in.reference_keyframe_points = local_.keyframe_num_points[ref_slot];
+    for (const auto& m : res.matches) {
+      const auto it = std::lower_bound(local_.points.begin(), local_.points.end(), m.point_id,
+                                       [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });
+      if (it == local_.points.end() || it->id != m.point_id) continue;
+      const size_t i = static_cast<size_t>(it - local_.points.begin());
+      const auto b = local_.observers.begin() + local_.observer_begin[i], e = local_.observers.begin() + local_.observer_begin[i + 1];
+      in.tracked_reference_points += std::find(b, e, reference_) != e;
+    }
   }
   in.mapping_idle = mapping_->idle();
   const KeyframeDecision d = decideKeyframe(in, opt_.tracking.keyframes);
-  if (d.insert && map_mode_ != MapMode::kLocalize) {  // localisation never adds to the map
+  if (d.insert && !localize_only) {  // localisation never adds to the map
     KeyframeInsertion k;
     k.frame = cframe;
     k.T_world_cam = res.T_world_cam;
@@ -383,6 +401,7 @@ void SlamSystem::finish(bool global_ba) {
   if (finished_) return;
   finished_ = true;
   mapping_->stop();
+  map_->flushTrackingStatistics();  // statistics queued while the mapping thread held the map
   if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0 &&
       map_mode_ != MapMode::kLocalize) {
     const BaResult r = mapping_->mapper().globalBundleAdjustment(opt_.mapping.global_ba_iterations);

@@ -9,9 +9,11 @@
 
 #include <nlohmann/json.hpp>
 
+#include "nerfslam/io/dataset.h"
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/render/synth.h"
 #include "nerfslam/system/runner.h"
+#include "nerfslam/system/slam_system.h"
 #include "test_support.h"
 
 namespace nerfslam {
@@ -101,6 +103,59 @@ TEST(SyntheticSlam, PureRotationNeverInitialises) {
   EXPECT_NE(r.report.at("failure").get<std::string>().find("rotation"), std::string::npos) << r.report.dump(2);
   // No invented trajectory: the trajectory file exists and holds no pose.
   EXPECT_EQ(posesInFile(r.out / "trajectory.txt"), 0);
+}
+
+TEST(SyntheticSlam, LocalizationOnlySwitchStopsAndResumesMapping) {
+  // Mapping for 50 frames, localisation only for 40 (tracked, the map frozen: no keyframe, no point,
+  // no change of a keyframe pose after mapping went idle), then mapping again for 30.
+  test::TempDir dir;
+  render::SynthOptions so;
+  so.scene = "room";
+  so.trajectory = "handheld";
+  so.frames = 120;
+  so.width = 640;
+  so.height = 480;
+  render::writeSynthSequence(so, dir.path() / "seq");
+  const auto ds = openDataset("tum:" + (dir.path() / "seq").string());
+  SystemOptions opt;
+  opt.nerf.enabled = false;
+  SlamSystem sys(ds->camera(), opt);
+  auto track = [&](size_t i) {
+    const DatasetFrame f = ds->load(i);
+    const FrameRecord r = sys.trackFrame(f.image, f.timestamp, i);
+    sys.waitMappingIdle();  // offline lockstep, as the runner does
+    return r;
+  };
+  for (size_t i = 0; i < 50; ++i) track(i);
+  ASSERT_TRUE(sys.initialized());
+  EXPECT_FALSE(sys.localizationOnly());
+  sys.setLocalizationOnly(true);
+  const auto kf_before = sys.map().keyframeIds();
+  const size_t points_before = sys.map().numPoints();
+  const Trajectory kf_poses_before = sys.keyframeTrajectory();
+  int tracked = 0;
+  for (size_t i = 50; i < 90; ++i) {
+    const FrameRecord r = track(i);
+    tracked += r.tracked;
+    EXPECT_FALSE(r.keyframe) << "frame " << i;
+  }
+  EXPECT_EQ(tracked, 40);
+  EXPECT_EQ(sys.map().keyframeIds(), kf_before);
+  EXPECT_EQ(sys.map().numPoints(), points_before);
+  const Trajectory kf_poses_after = sys.keyframeTrajectory();
+  ASSERT_EQ(kf_poses_after.size(), kf_poses_before.size());
+  for (size_t k = 0; k < kf_poses_after.size(); ++k)
+    EXPECT_LT((kf_poses_after[k].pose.translation() - kf_poses_before[k].pose.translation()).norm(), 1e-12);
+  sys.setLocalizationOnly(false);
+  int keyframes = 0;
+  for (size_t i = 90; i < 120; ++i) {
+    const FrameRecord r = track(i);
+    EXPECT_TRUE(r.tracked) << "frame " << i;
+    keyframes += r.keyframe;
+  }
+  EXPECT_GT(keyframes, 0);
+  EXPECT_GT(sys.map().numKeyframes(), kf_before.size());
+  sys.finish();
 }
 
 }  // namespace

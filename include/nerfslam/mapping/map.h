@@ -9,10 +9,18 @@
 // exclusive section, so a reader never sees a half-updated pose. The mapping thread optimises copies
 // and publishes the result in one call (applyUpdate), which bumps version(). Features of a keyframe
 // are immutable once inserted; only its pose and keypoint->point associations change.
+//
+// The tracking thread never waits for the lock (SlamSystem::buildLocalMap): it reads its local map
+// with localMapForTracking / refreshLocalMap (one shared-lock section each, no MapPoint copies)
+// with wait = false, going on with the map it has when a writer holds the lock, and its
+// statistics (increaseVisible/Found) are queued when the lock is taken and applied later.
+// structureVersion() tells it when the point list must be rebuilt (keyframes, points or
+// observations inserted or erased) rather than refreshed (poses and positions moved by BA).
 #include <atomic>
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <shared_mutex>
 #include <unordered_map>
@@ -25,6 +33,7 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
 #include "nerfslam/tracking/frame.h"
+#include "nerfslam/tracking/tracker.h"
 
 namespace nerfslam {
 
@@ -63,6 +72,22 @@ struct MapUpdate {
   std::vector<std::pair<PointId, Eigen::Vector3d>> point_positions;
   std::vector<std::pair<PointId, KeyframeId>> erase_observations;
   std::vector<PointId> erase_points;
+};
+
+// The tracking thread's local map: a reference keyframe, its best covisible keyframes and the points
+// they observe, as the tracker sees them (TrackingMapPoint::id is the PointId).
+struct TrackingLocalMap {
+  KeyframeId ref = -1;
+  std::vector<KeyframeId> keyframes;  // ref first, then by decreasing covisibility, then the newest
+  std::vector<SE3> keyframe_poses;    // T_world_cam of `keyframes`
+  std::vector<TrackingMapPoint> points;  // sorted by id
+  // Keyframes observing points[i]: observers[observer_begin[i] .. observer_begin[i + 1]).
+  std::vector<int> observer_begin;
+  std::vector<KeyframeId> observers;
+  std::vector<int> keyframe_num_points;  // map points each of `keyframes` observes
+  uint64_t structure_version = ~0ull;
+  uint64_t version = ~0ull;  // Map::version() of the last build or refresh
+  bool empty() const { return keyframes.empty(); }
 };
 
 // Time the calling thread spent waiting for the Map's lock (acquisitions that found it taken).
@@ -107,9 +132,11 @@ class Map {
   void updatePointAppearance(PointId pid);
   void setKeyframePose(KeyframeId id, const SE3& T_world_cam);
   void applyUpdate(const MapUpdate& update);
-  // Tracking statistics.
+  // Tracking statistics. Never wait: when a writer holds the lock the ids are queued and counted
+  // at the next call that gets it (flushTrackingStatistics() forces that).
   void increaseVisible(const std::vector<PointId>& pids);
   void increaseFound(const std::vector<PointId>& pids);
+  void flushTrackingStatistics();
   // Applies `T` (a similarity) to every pose and point, e.g. to rescale the map.
   void transform(const Sim3& T);
   void clear();
@@ -136,6 +163,14 @@ class Map {
   // Points observed by the given keyframes (each once).
   std::vector<PointId> pointsSeenBy(const std::vector<KeyframeId>& kfs) const;
 
+  // Builds `out` around `ref` (max_keyframes: ref and its best covisible keyframes; the newest
+  // keyframe is added too) in one shared-lock section. With wait = false nothing is read and false
+  // returned when a writer holds the lock; also false when `ref` is not in the map.
+  bool localMapForTracking(KeyframeId ref, int max_keyframes, TrackingLocalMap* out, bool wait = true) const;
+  // Updates the keyframe poses and point positions of `m` (the lists stay as built). false, and `m`
+  // unchanged, when wait = false and a writer holds the lock.
+  bool refreshLocalMap(TrackingLocalMap* m, bool wait = true) const;
+
   // Lock-wait statistics of the calling thread, over all Map instances, since the thread started or
   // the last resetThreadLockWait().
   static MapLockWait threadLockWait();
@@ -143,12 +178,21 @@ class Map {
 
   // Incremented on every write.
   uint64_t version() const { return version_.load(std::memory_order_acquire); }
+  // Incremented when keyframes, points or observations (or descriptors) are inserted or erased, not
+  // when poses, positions or statistics change.
+  uint64_t structureVersion() const { return structure_version_.load(std::memory_order_acquire); }
 
  private:
   void eraseObservationLocked(PointId pid, KeyframeId kf);
   void erasePointLocked(PointId pid);
   void updateAppearanceLocked(MapPoint& p);
   void bump() { version_.fetch_add(1, std::memory_order_acq_rel); }
+  void bumpStructure() {
+    structure_version_.fetch_add(1, std::memory_order_acq_rel);
+    bump();
+  }
+  void applyStatisticsLocked(const std::vector<PointId>& visible, const std::vector<PointId>& found);
+  void updateStatistics(const std::vector<PointId>& visible, const std::vector<PointId>& found, bool wait);
 
   Camera camera_;
   mutable std::shared_mutex mutex_;
@@ -158,6 +202,10 @@ class Map {
   KeyframeId next_kf_ = 0;
   PointId next_point_ = 0;
   std::atomic<uint64_t> version_{0};
+  std::atomic<uint64_t> structure_version_{0};
+  // Statistics queued while the lock was taken (increaseVisible/Found never wait).
+  std::mutex pending_mutex_;
+  std::vector<PointId> pending_visible_, pending_found_;
 };
 
 }  // namespace nerfslam

@@ -6,6 +6,7 @@
 //
 // Every tracked frame is stored relative to its reference keyframe, so the final trajectory follows
 // the keyframes' bundle-adjusted poses (trajectory()).
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -132,13 +133,19 @@ class SlamSystem {
   const std::string& initializationModel() const { return init_model_; }
   int relocalizations() const { return relocalizations_; }
   MapMode mapMode() const { return map_mode_; }
+  // Localisation only, switchable at run time from any thread (e.g. a ROS service): while on, frames
+  // are tracked and relocalised against the map but add no keyframes, no statistics and never reset
+  // it; mapping and the NeRF finish what they were given. Started with MapMode::kLocalize it is on.
+  void setLocalizationOnly(bool on) { localization_only_.store(on, std::memory_order_release); }
+  bool localizationOnly() const { return localization_only_.load(std::memory_order_acquire); }
   // Index of the first frame relocalised in the loaded map (-1: not yet, or no loaded map).
   int64_t relocalizedAtFrame() const { return relocalized_at_frame_; }
 
  private:
   bool initialize(const InitializationResult& r, const std::shared_ptr<const Frame>& frame, FrameRecord& rec);
   void reset();
-  void buildLocalMap(KeyframeId ref);
+  // `wait` = false: never waits for the map lock (the local map may then stay as it was).
+  void buildLocalMap(KeyframeId ref, bool wait = true);
   KeyframeId chooseReference(const std::vector<MapMatch>& matches) const;
 
   Camera camera_;
@@ -154,16 +161,16 @@ class SlamSystem {
   std::string last_init_message_;
   std::string init_model_;
   std::vector<FrameRecord> records_;
-  // Local map cache.
-  std::vector<TrackingMapPoint> local_points_;
-  std::vector<KeyframeId> local_keyframes_;
-  uint64_t local_version_ = ~0ull;
-  KeyframeId local_ref_ = -1;
+  // Local map cache (buildLocalMap): rebuilt when the map's structure or the reference changes,
+  // refreshed when BA moved poses and points, kept when the map's lock is taken (stale frames).
+  TrackingLocalMap local_;
+  int local_stale_frames_ = 0;
   KeyframeId reference_ = -1;
   std::vector<MapMatch> last_matches_;
   std::vector<std::shared_ptr<const Frame>> pre_init_frames_;  // tracked retroactively after initialisation
   int frames_since_keyframe_ = 0;
   bool finished_ = false;
+  std::atomic<bool> localization_only_{false};
   MapMode map_mode_ = MapMode::kSlam;  // kLocalize / kExtend: started from a loaded map
   int64_t relocalized_at_frame_ = -1;
 };
