@@ -110,12 +110,18 @@ struct RadianceField::Impl {
   }
 };
 
+// What forward() keeps for backward(): the inputs and the hash encoding of every sample (the
+// expensive, memory-bound part) and the outputs. The MLP activations are not stored: backward()
+// recomputes them tile by tile for the samples it back-propagates (as instant-ngp's training
+// recomputes its forward pass on the compacted samples), so they never leave L1/L2 and the
+// workspace is ~170 bytes per sample instead of ~1 KiB.
 struct RadianceField::Workspace::Impl {
   size_t n = 0;
-  std::vector<float> pos, enc /*[tile][n_enc][kTile]*/, h1 /*[n][H]*/, cin /*[n][32]*/, c1 /*[n][H]*/, c2 /*[n][H]*/,
-      rgb /*[n][3]*/, sigma /*[n]*/, logd /*[n]*/;
-  // Per-tile backward scratch.
-  std::vector<float> dlog, dc2, dc1, dd, dh1, denc;
+  std::vector<float> pos /*[n][3]*/, dir /*[n][3]*/, enc /*[tile][n_enc][kTile]*/, rgb /*[n][3]*/, sigma /*[n]*/,
+      logd /*[n]*/;
+  // Per-tile scratch: activations of one tile (forward, and recomputed in backward), gradients.
+  std::vector<float> h1, cin, c1, c2, logits, dlog, dc2, dc1, dd, dh1, denc, t_enc;
+  std::vector<uint32_t> live;  // samples with a non-zero loss gradient
 };
 
 // The hash-grid part of the gradient is deferred: backward() records each sample's position and
@@ -360,33 +366,33 @@ void RadianceField::forward(Workspace& wsp, const float* pos, const float* dir, 
   const size_t n_tiles = (n + kTile - 1) / kTile;
   ws.n = n;
   ws.pos.assign(pos, pos + 3 * n);
+  ws.dir.assign(dir, dir + 3 * n);
   auto grow = [](std::vector<float>& v, size_t size) {
     if (v.size() < size) v.resize(size);
   };
   grow(ws.enc, n_tiles * E * kTile);
-  grow(ws.h1, n * H);
-  grow(ws.cin, n * kColorIn);
-  grow(ws.c1, n * H);
-  grow(ws.c2, n * H);
   grow(ws.rgb, n * 3);
   grow(ws.sigma, n);
   grow(ws.logd, n);
-  std::vector<float>& logits = ws.dlog;  // scratch; backward overwrites it
-  grow(logits, kTile * kColorOutPadded);
+  grow(ws.h1, kTile * H);
+  grow(ws.cin, kTile * kColorIn);
+  grow(ws.c1, kTile * H);
+  grow(ws.c2, kTile * H);
+  grow(ws.logits, kTile * kColorOutPadded);
   const float clampv = float(f.cfg.max_log_density);
+  float* cin = ws.cin.data();
   for (size_t t = 0; t < n_tiles; ++t) {
     const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
     float* encT = ws.enc.data() + t * E * kTile;
-    float* cin = ws.cin.data() + s0 * kColorIn;
     hashEncode(f.grid(), pos + 3 * s0, m, encT, kTile);
-    densityTile(f, m, encT, ws.h1.data() + s0 * H, cin + kShCoeffs, kColorIn);
+    densityTile(f, m, encT, ws.h1.data(), cin + kShCoeffs, kColorIn);
     shEncodeBatch(dir + 3 * s0, m, cin, kColorIn);
-    colorTile(f, m, cin, ws.c1.data() + s0 * H, ws.c2.data() + s0 * H, logits.data());
+    colorTile(f, m, cin, ws.c1.data(), ws.c2.data(), ws.logits.data());
     for (size_t i = 0; i < m; ++i) {
       const float ld = cin[i * kColorIn + kShCoeffs];
       ws.logd[s0 + i] = ld;
       ws.sigma[s0 + i] = std::exp(std::min(ld, clampv));
-      for (size_t k = 0; k < 3; ++k) ws.rgb[3 * (s0 + i) + k] = sigmoid(logits[i * kColorOutPadded + k]);
+      for (size_t k = 0; k < 3; ++k) ws.rgb[3 * (s0 + i) + k] = sigmoid(ws.logits[i * kColorOutPadded + k]);
     }
   }
   if (sigma) std::copy(ws.sigma.begin(), ws.sigma.begin() + long(n), sigma);
@@ -400,16 +406,29 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
   if (g.n_entries != f.n_entries || g.mlp.size() != f.n_mlp)
     fail("RadianceField::backward: gradients were not made by this field");
   const size_t n = ws.n, H = size_t(f.H), E = size_t(f.n_enc);
-  // Record this call's samples as one segment of the deferred hash-grid gradient.
+  // Compaction: samples whose loss gradient is exactly zero (in training, every sample past a ray's
+  // early termination, often half of them) contribute nothing; back-propagate the others only, in
+  // order, in tiles of kTile.
+  std::vector<uint32_t>& live = ws.live;
+  live.clear();
+  for (size_t i = 0; i < n; ++i) {
+    bool nz = dL_dsigma && dL_dsigma[i] != 0.f;
+    if (dL_drgb) nz |= dL_drgb[3 * i] != 0.f || dL_drgb[3 * i + 1] != 0.f || dL_drgb[3 * i + 2] != 0.f;
+    if (nz) live.push_back(uint32_t(i));
+  }
+  const size_t nl = live.size();
+  // Record the live samples as one segment of the deferred hash-grid gradient.
   const size_t seg0 = g.n, denc0 = g.seg_denc.empty() ? 0 : g.seg_denc.back() + E * (g.n - g.seg_begin.back());
   g.seg_begin.push_back(seg0);
   g.seg_denc.push_back(denc0);
-  g.n += n;
+  g.n += nl;
   if (g.pos.size() < 3 * g.n) g.pos.resize(3 * g.n);
-  if (g.denc.size() < denc0 + E * n) g.denc.resize(denc0 + E * n);
-  std::copy(ws.pos.begin(), ws.pos.begin() + long(3 * n), g.pos.begin() + long(3 * seg0));
-  float* seg_denc = g.denc.data() + denc0;  // [l][s][2], s < n
-  const size_t n_tiles = (n + kTile - 1) / kTile;
+  if (g.denc.size() < denc0 + E * nl) g.denc.resize(denc0 + E * nl);
+  for (size_t j = 0; j < nl; ++j)
+    std::copy(ws.pos.begin() + long(3 * live[j]), ws.pos.begin() + long(3 * live[j] + 3),
+              g.pos.begin() + long(3 * (seg0 + j)));
+  float* seg_denc = g.denc.data() + denc0;  // [l][s][2], s < nl
+  const size_t n_tiles = (nl + kTile - 1) / kTile;
   auto grow = [](std::vector<float>& v, size_t size) {
     if (v.size() < size) v.resize(size);
   };
@@ -419,14 +438,34 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
   grow(ws.dd, kTile * kDensityOutputs);
   grow(ws.dh1, kTile * H);
   grow(ws.denc, kTile * E);
+  grow(ws.t_enc, E * kTile);
+  grow(ws.h1, kTile * H);
+  grow(ws.cin, kTile * kColorIn);
+  grow(ws.c1, kTile * H);
+  grow(ws.c2, kTile * H);
+  grow(ws.logits, kTile * kColorOutPadded);
+  std::vector<float> tdir(3 * kTile);
   float* gw = g.mlp.data();
   for (size_t t = 0; t < n_tiles; ++t) {
-    const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
-    const float* encT = ws.enc.data() + t * E * kTile;
-    const float* h1 = ws.h1.data() + s0 * H;
-    const float* cin = ws.cin.data() + s0 * kColorIn;
-    const float* c1 = ws.c1.data() + s0 * H;
-    const float* c2 = ws.c2.data() + s0 * H;
+    const size_t j0 = t * kTile, m = std::min(kTile, nl - j0);
+    const uint32_t* idx = live.data() + j0;
+    // Gather the tile's encodings (a forward tile holds them feature-major [E][kTile]) and
+    // directions, and recompute its activations (bit-identical to forward(): the GEMM's result
+    // for a row does not depend on the other rows of the tile).
+    float* encT = ws.t_enc.data();
+    for (size_t i = 0; i < m; ++i) {
+      const size_t s = idx[i], ft = s / kTile, fi = s % kTile;
+      const float* src = ws.enc.data() + ft * E * kTile + fi;
+      for (size_t k = 0; k < E; ++k) encT[k * kTile + i] = src[k * kTile];
+      for (size_t k = 0; k < 3; ++k) tdir[3 * i + k] = ws.dir[3 * s + k];
+    }
+    float* cin = ws.cin.data();
+    densityTile(f, m, encT, ws.h1.data(), cin + kShCoeffs, kColorIn);
+    shEncodeBatch(tdir.data(), m, cin, kColorIn);
+    colorTile(f, m, cin, ws.c1.data(), ws.c2.data(), ws.logits.data());
+    const float* h1 = ws.h1.data();
+    const float* c1 = ws.c1.data();
+    const float* c2 = ws.c2.data();
     // Output activations.
     float* dlog = ws.dlog.data();
     std::fill(dlog, dlog + m * kColorOutPadded, 0.f);
@@ -434,8 +473,8 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
     if (dL_drgb) {
       for (size_t i = 0; i < m; ++i)
         for (size_t k = 0; k < 3; ++k) {
-          const float y = ws.rgb[3 * (s0 + i) + k];
-          const float d = dL_drgb[3 * (s0 + i) + k] * y * (1.f - y);
+          const float y = ws.rgb[3 * idx[i] + k];
+          const float d = dL_drgb[3 * idx[i] + k] * y * (1.f - y);
           dlog[i * kColorOutPadded + k] = d;
           any_rgb |= d != 0.f;
         }
@@ -456,7 +495,7 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
       std::fill(dd, dd + m * kDensityOutputs, 0.f);
     }
     if (dL_dsigma) {
-      for (size_t i = 0; i < m; ++i) dd[i * kDensityOutputs] += dL_dsigma[s0 + i] * ws.sigma[s0 + i];  // trunc_exp
+      for (size_t i = 0; i < m; ++i) dd[i * kDensityOutputs] += dL_dsigma[idx[i]] * ws.sigma[idx[i]];  // trunc_exp
     }
     // Density network.
     gemm(mm(H, kDensityOutputs, m, h1, 1, H, dd, kDensityOutputs, gw + f.off_d1, kDensityOutputs, Epilogue::kNone,
@@ -467,7 +506,7 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
     gemm(mm(m, E, H, ws.dh1.data(), H, 1, f.WT(f.off_d0), E, ws.denc.data(), E));
     // Keep d_enc level-major for the optimiser's per-level scatter.
     for (size_t l = 0; l < E / 2; ++l) {
-      float* dst = seg_denc + l * 2 * n + 2 * s0;
+      float* dst = seg_denc + l * 2 * nl + 2 * j0;
       const float* src = ws.denc.data() + 2 * l;
       for (size_t i = 0; i < m; ++i) {
         dst[2 * i] = src[i * E];

@@ -153,6 +153,17 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
     }
   }
 
+  // Evaluate the picks in cell order (a counting sort: the picks are a multiset of cell indices):
+  // neighbouring queries then share hash-table lines, where random order makes every level's
+  // lookups miss the cache. The positions stay a pure function of the seed.
+  if (prm.uniform_cells >= 0 && !cells.empty()) {
+    std::vector<uint32_t> count(total, 0u);
+    for (uint32_t c : cells) ++count[c];
+    size_t k = 0;
+    for (size_t i = 0; i < total; ++i)
+      for (uint32_t r = count[i]; r > 0; --r) cells[k++] = uint32_t(i);
+  }
+
   std::vector<float> fresh(total, 0.f);
   constexpr size_t kChunk = 1 << 16;
   std::vector<float> xyz(3 * kChunk), sigma(kChunk);

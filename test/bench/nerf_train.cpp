@@ -1,10 +1,26 @@
 // NeRF training throughput on lego (400x400, --downscale 2 equivalent): samples/s of fwd + bwd +
 // optimiser on 2 threads, per-stage times, and a 640x480 render of the partly trained model.
 //   bench_nerf_train [--benchmark_min_time=...]   (needs the shared data; see test_support.h)
+//   NERFSLAM_BENCH_WARMUP_STEPS=N: training steps before measuring (default 200)
+//
+// Counters of BM_TrainStep (per step unless named otherwise):
+//   samples_per_s      ray samples per wall second (the machine is shared: see samples_per_cpu_s)
+//   samples_per_cpu_s  ray samples per CPU second summed over all threads (per-core throughput;
+//                      on an idle 2-core machine wall throughput is about twice this)
+//   ms_*               wall ms per stage as the trainer reports them (march, field forward,
+//                      composite, field backward = MLP backward, optimizer = hash-grid scatter +
+//                      Adam, grid = occupancy update amortised over the steps)
+//   cpu_ms_scatter, cpu_ms_adam, cpu_ms_mlp_adam   CPU ms of the optimiser's parts (summed over
+//                      its workers), entries = hash entries updated per step
+//   peak_rss_mb        VmHWM of the process so far
 #include <benchmark/benchmark.h>
 
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
+#include <ctime>
+#include <fstream>
+#include <string>
 
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/nerf/renderer.h"
@@ -14,6 +30,20 @@
 namespace {
 
 using namespace nerfslam;
+
+double processCpuSeconds() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+double peakRssMb() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  return 0.0;
+}
 
 struct Setup {
   std::vector<nerf::TrainingView> views;
@@ -34,7 +64,11 @@ Setup& setup() {
     nerf::TrainOptions o;
     o.threads = 2;
     r.trainer = std::make_unique<nerf::Trainer>(*r.model, r.views, o);
-    for (int i = 0; i < 40; ++i) r.trainer->step();  // past the first grid updates
+    // Warm-up: past the first grid updates and into the regime of a 60 s run (rays terminate,
+    // the grid is sparse). NERFSLAM_BENCH_WARMUP_STEPS overrides the default 200.
+    const char* env = std::getenv("NERFSLAM_BENCH_WARMUP_STEPS");
+    const int warmup = env ? std::atoi(env) : 200;
+    for (int i = 0; i < warmup; ++i) r.trainer->step();
     return r;
   }();
   return s;
@@ -44,6 +78,8 @@ void BM_TrainStep(benchmark::State& state) {
   auto& s = setup();
   int64_t samples = 0;
   nerf::StageTimes t;
+  double scatter = 0, adam = 0, mlp = 0, entries = 0;
+  const double cpu0 = processCpuSeconds();
   for (auto _ : state) {
     const auto st = s.trainer->step();
     samples += st.samples;
@@ -53,15 +89,28 @@ void BM_TrainStep(benchmark::State& state) {
     t.field_backward += st.times.field_backward;
     t.optimizer += st.times.optimizer;
     t.grid_update += st.times.grid_update;
+    const auto& p = s.model->field->lastStepProfile();
+    scatter += p.scatter_seconds;
+    adam += p.adam_seconds;
+    mlp += p.mlp_seconds;
+    entries += double(p.entries_updated);
   }
+  const double cpu = processCpuSeconds() - cpu0;
   const double n = double(state.iterations());
   state.counters["samples_per_s"] = benchmark::Counter(double(samples), benchmark::Counter::kIsRate);
+  state.counters["samples_per_cpu_s"] = double(samples) / cpu;
+  state.counters["samples_per_step"] = double(samples) / n;
   state.counters["ms_march"] = 1e3 * t.march / n;
   state.counters["ms_field_fwd"] = 1e3 * t.field_forward / n;
   state.counters["ms_composite"] = 1e3 * t.composite / n;
   state.counters["ms_field_bwd"] = 1e3 * t.field_backward / n;
   state.counters["ms_optimizer"] = 1e3 * t.optimizer / n;
   state.counters["ms_grid"] = 1e3 * t.grid_update / n;
+  state.counters["cpu_ms_scatter"] = 1e3 * scatter / n;
+  state.counters["cpu_ms_adam"] = 1e3 * adam / n;
+  state.counters["cpu_ms_mlp_adam"] = 1e3 * mlp / n;
+  state.counters["entries"] = entries / n;
+  state.counters["peak_rss_mb"] = peakRssMb();
 }
 BENCHMARK(BM_TrainStep)->Unit(benchmark::kMillisecond)->Iterations(20)->UseRealTime();
 
@@ -73,8 +122,10 @@ void BM_Render640x480(benchmark::State& state) {
   ro.threads = 2;
   ro.normals = state.range(0) != 0;
   int64_t samples = 0;
+  const double cpu0 = processCpuSeconds();
   for (auto _ : state) samples += nerf::renderView(*s.model, cam, pose, ro).samples;
   state.counters["field_samples"] = double(samples) / double(state.iterations());
+  state.counters["cpu_ms"] = 1e3 * (processCpuSeconds() - cpu0) / double(state.iterations());
 }
 BENCHMARK(BM_Render640x480)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(3)->UseRealTime();
 

@@ -150,7 +150,9 @@ class RadianceField {
   // null when not wanted (they are still kept in the workspace).
   void forward(Workspace& ws, const float* pos, const float* dir, size_t n, float* sigma, float* rgb) const;
   // Back-propagates dL/dsigma (n) and dL/drgb (n*3) of the last forward() on `ws` and adds the
-  // parameter gradients into `grads`. Either pointer may be null (treated as zeros).
+  // parameter gradients into `grads`. Either pointer may be null (treated as zeros). Samples whose
+  // gradients are all exactly zero (e.g. past a ray's early termination) are skipped: they add
+  // nothing, and the MLP backward and the hash-grid scatter then run on the others only.
   void backward(Workspace& ws, const float* dL_dsigma, const float* dL_drgb, Gradients& grads) const;
   // Sums the per-thread gradients in the given order (deterministic), applies Adam with learning
   // rate `lr` (see adam.h for the sparse update rule), and clears the gradients. Only hash entries
