@@ -78,6 +78,7 @@ void SlamSystem::reset() {
   state_ = TrackingState::kNotInitialized;
   local_ = TrackingLocalMap{};
   local_stale_frames_ = 0;
+  last_inliers_ = 0;
   reference_ = -1;
   last_matches_.clear();
   pre_init_frames_.clear();
@@ -272,7 +273,14 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   ++frames_since_keyframe_;
   buildLocalMap(reference_, false);
   TrackingResult res = tracker_->track(*frame, local_.points);
-  if (res.quality == TrackingQuality::kLost) {
+  // Relocalisation when lost, and when tracking is weak for want of inliers (a wide baseline or a
+  // sudden motion the motion model missed, as between the photos of a multi-view set): the pose with
+  // more inliers wins.
+  const bool weak_retry =
+      opt_.relocalize_when_weak && res.quality != TrackingQuality::kLost &&
+      (res.num_inliers < opt_.tracking.tracker.min_inliers_good ||
+       double(res.num_inliers) < opt_.relocalize_inlier_drop * double(last_inliers_));
+  if (res.quality == TrackingQuality::kLost || weak_retry) {
     // Relocalisation against the most recent keyframes.
     std::vector<RelocalizationCandidate> cands;
     auto ids = map_->keyframeIds();
@@ -305,20 +313,32 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     const RelocalizationResult rl =
         relocalize(*frame, cands, opt_.tracking.relocalizer, opt_.tracking.tracker.optimizer);
     if (rl.success) {
+      const TrackingResult before = res;
+      const KeyframeId ref_before = local_.ref;
       tracker_->setPose(rl.T_world_cam);
       buildLocalMap(static_cast<KeyframeId>(rl.keyframe_id));
-      res = tracker_->track(*frame, local_.points, &rl.T_world_cam);
-      if (res.quality != TrackingQuality::kLost) {
-        ++relocalizations_;
-        if (map_mode_ != MapMode::kSlam && relocalized_at_frame_ < 0) relocalized_at_frame_ = int64_t(index);
-        spdlog::info("frame {}: relocalised against keyframe {} ({} inliers)", index, rl.keyframe_id, res.num_inliers);
+      TrackingResult again = tracker_->track(*frame, local_.points, &rl.T_world_cam);
+      if (weak_retry && (again.quality == TrackingQuality::kLost || again.num_inliers <= before.num_inliers)) {
+        // The weak pose stands: the tracker and the local map go back to it.
+        tracker_->setPose(before.T_world_cam);
+        buildLocalMap(ref_before);
+      } else {
+        res = std::move(again);
+        if (res.quality != TrackingQuality::kLost) {
+          ++relocalizations_;
+          if (map_mode_ != MapMode::kSlam && relocalized_at_frame_ < 0) relocalized_at_frame_ = int64_t(index);
+          spdlog::info("frame {}: relocalised against keyframe {} ({} inliers{})", index, rl.keyframe_id,
+                       res.num_inliers,
+                       weak_retry ? fmt::format("; tracking had {}", before.num_inliers) : std::string());
+        }
       }
-    } else {
+    } else if (!weak_retry) {
       rec.message = "lost: " + (res.message.empty() ? std::string("too few inliers") : res.message) +
                     "; relocalisation: " + rl.reason;
     }
   }
   rec.num_inliers = res.num_inliers;
+  last_inliers_ = res.quality == TrackingQuality::kLost ? 0 : res.num_inliers;
   if (res.quality == TrackingQuality::kLost) {
     if (state_ != TrackingState::kLost) spdlog::warn("frame {}: tracking lost ({})", index, rec.message);
     state_ = TrackingState::kLost;

@@ -40,7 +40,9 @@ struct SystemOptions {
   MappingOptions mapping;
   int local_map_keyframes = 10;          // covisible keyframes whose points tracking matches against
   int keyframe_queue = 3;                // mapping input queue (keyframes beyond it are dropped)
-  int relocalization_candidates = 5;     // most recent keyframes tried when lost
+  int relocalization_candidates = 5;
+  bool relocalize_when_weak = true;  // also relocalise frames tracked with fewer than min_inliers_good inliers
+  double relocalize_inlier_drop = 0.25;  // ... or with fewer than this fraction of the previous frame's inliers     // most recent keyframes tried when lost
   int min_initial_points = 50;           // map points required after initialisation + BA
   int reset_if_lost_with_keyframes = 3;  // lost with at most this many keyframes: reinitialise
   int frame_queue = 2;                   // frames between the reader and the tracking thread
@@ -58,6 +60,13 @@ struct SystemOptions {
       check::range(1, 1000));
     v("relocalization_candidates", relocalization_candidates, "Recent keyframes tried by relocalisation",
       check::range(1, 1000));
+    v("relocalize_when_weak", relocalize_when_weak,
+      "Also relocalise frames tracked with fewer than tracking.tracker.min_inliers_good inliers; the pose with "
+      "more inliers wins");
+    v("relocalize_inlier_drop", relocalize_inlier_drop,
+      "With relocalize_when_weak: also relocalise a frame tracked with fewer than this fraction of the previous "
+      "frame's inliers (a motion the motion model missed; 0: never)",
+      check::range(0.0, 1.0));
     v("min_initial_points", min_initial_points, "Map points required to accept an initialisation",
       check::range(8, 100000));
     v("reset_if_lost_with_keyframes", reset_if_lost_with_keyframes,
@@ -165,6 +174,7 @@ class SlamSystem {
   // refreshed when BA moved poses and points, kept when the map's lock is taken (stale frames).
   TrackingLocalMap local_;
   int local_stale_frames_ = 0;
+  int last_inliers_ = 0;  // inliers of the last tracked frame (0: the last frame was not tracked)
   KeyframeId reference_ = -1;
   std::vector<MapMatch> last_matches_;
   std::vector<std::shared_ptr<const Frame>> pre_init_frames_;  // tracked retroactively after initialisation
