@@ -178,7 +178,7 @@ RunResult runSlam(const RunOptions& ro) {
   });
 
   // Tracking thread.
-  std::vector<double> tracking_ms;
+  std::vector<double> tracking_ms, tracking_cpu_ms;
   const auto run0 = Clock::now();
   std::thread tracker([&] {
     auto last_print = Clock::now();
@@ -186,6 +186,7 @@ RunResult runSlam(const RunOptions& ro) {
       try {
         const FrameRecord r = slam.trackFrame(f->image, f->timestamp, f->index);
         tracking_ms.push_back(r.tracking_ms);
+        tracking_cpu_ms.push_back(r.tracking_cpu_ms);
       } catch (const std::exception& e) {
         std::lock_guard<std::mutex> lock(failure_mutex);
         tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
@@ -255,6 +256,29 @@ RunResult runSlam(const RunOptions& ro) {
   rep["frames_per_second"] = processed.load() / std::max(wall_s, 1e-9);
   rep["tracking_ms_median"] = percentile(tracking_ms, 0.5);
   rep["tracking_ms_p99"] = percentile(tracking_ms, 0.99);
+  rep["tracking_cpu_ms_median"] = percentile(tracking_cpu_ms, 0.5);
+  rep["tracking_cpu_ms_p99"] = percentile(tracking_cpu_ms, 0.99);
+  // Does the cost per frame grow with the map? Tracking CPU time (the tracking thread's own, not
+  // inflated by the other threads) per window of 200 frames.
+  {
+    nlohmann::json windows = nlohmann::json::array();
+    constexpr size_t kWindow = 200;
+    // Windows of 200 frames from the first; a last window shorter than 100 frames is left out
+    // (unless it is the only one).
+    for (size_t b = 0; b < tracking_cpu_ms.size() && (b == 0 || b + kWindow / 2 <= tracking_cpu_ms.size());
+         b += kWindow) {
+      const size_t e = std::min(b + kWindow, tracking_cpu_ms.size());
+      const std::vector<double> cpu(tracking_cpu_ms.begin() + long(b), tracking_cpu_ms.begin() + long(e));
+      const std::vector<double> wall(tracking_ms.begin() + long(b), tracking_ms.begin() + long(e));
+      windows.push_back({{"first_frame", b},
+                         {"frames", e - b},
+                         {"cpu_ms_median", percentile(cpu, 0.5)},
+                         {"cpu_ms_p99", percentile(cpu, 0.99)},
+                         {"wall_ms_median", percentile(wall, 0.5)},
+                         {"wall_ms_p99", percentile(wall, 0.99)}});
+    }
+    rep["tracking_ms_windows"] = windows;
+  }
   rep["nerf"] = slam.nerf() != nullptr;
   if (slam.nerf()) rep["tracking_ms_median_with_nerf"] = percentile(tracking_ms, 0.5);
   std::vector<double> ba_ms, map_ms;

@@ -8,6 +8,7 @@
 #include <spdlog/spdlog.h>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/timing.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam/tracking/initializer.h"
 #include "nerfslam/tracking/relocalizer.h"
@@ -234,6 +235,7 @@ void SlamSystem::buildLocalMap(KeyframeId ref, bool wait) {
 FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint64_t index) {
   if (finished_) fail("SlamSystem::trackFrame after finish()");
   const auto t0 = std::chrono::steady_clock::now();
+  const double cpu0 = threadCpuMs();
   FrameRecord rec;
   rec.index = index;
   rec.timestamp = timestamp;
@@ -243,6 +245,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   auto finishRecord = [&]() -> FrameRecord {
     rec.state = state_;
     rec.tracking_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    rec.tracking_cpu_ms = threadCpuMs() - cpu0;
     records_.push_back(rec);
     return rec;
   };

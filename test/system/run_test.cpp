@@ -38,8 +38,15 @@ TEST(RunSystem, Kitti06First51TracksEveryFrameAccurately) {
   EXPECT_GT(rep.at("keyframes").get<int>(), 5);
   EXPECT_GT(rep.at("map_points").get<int>(), 1000);
   for (const char* k :
-       {"tracking_ms_median", "tracking_ms_p99", "ba_ms_median", "ate_rmse_m", "ate_scale", "rpe_trans", "rpe_rot_deg"})
+       {"tracking_ms_median", "tracking_ms_p99", "tracking_cpu_ms_median", "tracking_cpu_ms_p99", "ba_ms_median",
+        "ate_rmse_m", "ate_scale", "rpe_trans", "rpe_rot_deg"})
     EXPECT_TRUE(rep.contains(k)) << k;
+  // 51 frames: one window of per-200-frame tracking cost, with CPU time <= wall time.
+  ASSERT_EQ(rep.at("tracking_ms_windows").size(), 1u) << rep.dump(2);
+  const auto& w = rep.at("tracking_ms_windows")[0];
+  EXPECT_EQ(w.at("frames").get<int>(), 51);
+  EXPECT_GT(w.at("cpu_ms_median").get<double>(), 0.0);
+  EXPECT_LE(w.at("cpu_ms_median").get<double>(), w.at("wall_ms_median").get<double>() * 1.05);
   // The trajectory file has one TUM pose per tracked frame, the map a PLY header with its count.
   EXPECT_EQ(readTumTrajectory(out / "trajectory.txt").size(), 51u);
   EXPECT_EQ(readTumTrajectory(out / "keyframes.txt").size(), rep.at("keyframes").get<size_t>());

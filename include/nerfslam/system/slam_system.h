@@ -100,7 +100,8 @@ struct FrameRecord {
   SE3 T_world_cam;  // at tracking time
   KeyframeId reference = -1;
   SE3 T_ref_cam;
-  double tracking_ms = 0;
+  double tracking_ms = 0;      // wall time of trackFrame
+  double tracking_cpu_ms = 0;  // CPU time of the calling thread in trackFrame (independent of load)
   std::string message;
 };
 
