@@ -275,7 +275,10 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
 
   ++frames_since_keyframe_;
   buildLocalMap(reference_, false);
+  const bool had_pose = tracker_->hasPose();
+  const SE3 pose_before = tracker_->lastPose();  // restored when a weak pose is refused below
   TrackingResult res = tracker_->track(*frame, local_.points);
+  bool relocalised = false;
   // Relocalisation when lost, and when tracking is weak for want of inliers (a wide baseline or a
   // sudden motion the motion model missed, as between the photos of a multi-view set): the pose with
   // more inliers wins.
@@ -328,6 +331,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
       } else {
         res = std::move(again);
         if (res.quality != TrackingQuality::kLost) {
+          relocalised = true;
           ++relocalizations_;
           if (map_mode_ != MapMode::kSlam && relocalized_at_frame_ < 0) relocalized_at_frame_ = int64_t(index);
           spdlog::info("frame {}: relocalised against keyframe {} ({} inliers{})", index, rl.keyframe_id,
@@ -338,6 +342,23 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     } else if (!weak_retry) {
       rec.message = "lost: " + (res.message.empty() ? std::string("too few inliers") : res.message) +
                     "; relocalisation: " + rl.reason;
+    }
+  }
+  // Weak evidence is not enough where the motion model cannot be trusted: right after a loss, or
+  // when the inliers collapsed and relocalisation found nothing better (a jump or a gap in the
+  // input). Such a pose is most likely wrong and, once in a keyframe, would corrupt the map: the
+  // frame is lost instead, and the tracker goes back to where it was.
+  if (res.quality == TrackingQuality::kWeak && !relocalised) {
+    const bool after_loss = state_ == TrackingState::kLost;
+    const bool collapsed =
+        opt_.relocalize_when_weak && double(res.num_inliers) < opt_.relocalize_inlier_drop * double(last_inliers_);
+    if (after_loss || collapsed) {
+      rec.message = fmt::format("lost: {} inliers {} ({}); relocalisation found no better pose", res.num_inliers,
+                                after_loss ? "are too weak to recover from a loss" : "collapsed from",
+                                after_loss ? fmt::format("< {}", opt_.tracking.tracker.min_inliers_good)
+                                           : std::to_string(last_inliers_));
+      res.quality = TrackingQuality::kLost;
+      if (had_pose) tracker_->setPose(pose_before);
     }
   }
   rec.num_inliers = res.num_inliers;

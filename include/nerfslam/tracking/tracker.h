@@ -98,6 +98,8 @@ class Tracker {
   // correction of the last pose). Velocity is zeroed unless `T_world_prev` is given.
   void setPose(const SE3& T_world_cam, const SE3* T_world_prev = nullptr);
   SE3 predictedPose() const;
+  // The last pose set by setPose/track (identity before any).
+  const SE3& lastPose() const { return last_; }
   bool hasPose() const { return has_pose_; }
   const TrackerOptions& options() const { return opt_; }
 
