@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <csignal>
 #include <cstdlib>
 #include <fstream>
 #include <random>
@@ -494,6 +495,78 @@ TEST(MapStore, KillDuringSaveLeavesPreviousMapLoadable) {
   const json manifest = readJson(dst / "map.json");
   for (const auto& f : manifest.at("files")) named.insert(f.at("name").get<std::string>());
   EXPECT_EQ(folderFiles(dst), named);
+}
+
+// A save that runs out of space. The child process (the helper below) gets a file-size limit
+// (RLIMIT_FSIZE via `ulimit -f`) with SIGXFSZ ignored, so a write past the limit fails with EFBIG
+// as a full disk fails with ENOSPC: the save must fail with an error naming the file, and the map
+// saved before must stay loadable and unchanged, with no temporary file left behind.
+constexpr const char* kDiskFullEnv = "NERFSLAM_TEST_MAP_DISK_FULL";
+
+TEST(MapStoreDiskFullHelper, SaveOnceChild) {
+  const char* env = std::getenv(kDiskFullEnv);
+  if (!env) GTEST_SKIP() << "helper process of MapStore.SaveIntoAFullDiskFailsAndKeepsThePreviousMap";
+  std::signal(SIGXFSZ, SIG_IGN);
+  const std::string arg(env);
+  const fs::path src = arg.substr(0, arg.find('|')), dst = arg.substr(arg.find('|') + 1);
+  LoadedMap b = loadMapFolder(src);
+  makeVariantB(*b.map);
+  try {
+    saveMapFolder(dst, *b.map, b.camera, b.options);
+  } catch (const Error& e) {
+    std::printf("save failed: %s\n", e.what());
+    std::fflush(stdout);
+    std::_Exit(3);
+  }
+  std::printf("save succeeded\n");
+  std::fflush(stdout);
+  std::_Exit(0);
+}
+
+TEST(MapStore, SaveIntoAFullDiskFailsAndKeepsThePreviousMap) {
+  test::TempDir tmp;
+  Camera cam;
+  {
+    const auto map = makeSmallMap(6, 320, 240, &cam);
+    saveMapFolder(tmp / "src", *map, cam, sparseOptions());
+  }
+  LoadedMap a = loadMapFolder(tmp / "src");
+  const std::string fa = fingerprint(*a.map);
+  const fs::path self = fs::read_symlink("/proc/self/exe");
+  // Into an empty folder (every file new; measured: the first keyframe image fails) and over the
+  // previous map (images reused; the keyframes file fails), at limits of 4 and 256 KiB.
+  for (const bool over_previous : {false, true})
+    for (const int kib : {4, 256}) {
+      const fs::path dst = tmp / fmt::format("dst_{}_{}", int(over_previous), kib);
+      if (over_previous) saveMapFolder(dst, *a.map, a.camera, a.options);
+      auto filesIn = [](const fs::path& d) { return fs::exists(d) ? folderFiles(d) : std::set<std::string>{}; };
+      const auto before = filesIn(dst);
+      const auto r = test::runCommand(fmt::format("ulimit -f {}; {}='{}|{}' '{}' --gtest_filter={}", kib, kDiskFullEnv,
+                                                  (tmp / "src").string(), dst.string(), self.string(),
+                                                  "MapStoreDiskFullHelper.SaveOnceChild"));
+      ASSERT_EQ(r.exit_code, 3) << "the save into a full disk did not fail with an Error (" << kib
+                                << " KiB): " << r.output;
+      const auto pos = r.output.find("save failed: ");
+      ASSERT_NE(pos, std::string::npos) << r.output;
+      const std::string message = r.output.substr(pos, r.output.find('\n', pos) - pos);
+      std::printf("%s, %d KiB: %s\n", over_previous ? "over the previous map" : "new folder", kib, message.c_str());
+      EXPECT_NE(message.find(dst.string()), std::string::npos) << "the error does not name the file: " << message;
+      const auto after = filesIn(dst);
+      if (over_previous) {
+        // Nothing half-written is left: the folder holds what it held before.
+        EXPECT_EQ(after, before) << message;
+      } else {
+        // No manifest (so no map that could load half of it) and no temporary file.
+        EXPECT_EQ(after.count("map.json"), 0u) << message;
+        for (const auto& f : after) EXPECT_EQ(f.find(".tmp"), std::string::npos) << f;
+        EXPECT_THROW(loadMapFolder(dst, cam), Error);
+      }
+      if (over_previous) {
+        LoadedMap l;
+        ASSERT_NO_THROW(l = loadMapFolder(dst, cam));
+        EXPECT_EQ(fingerprint(*l.map), fa);
+      }
+    }
 }
 
 // ---- nerfslam run --map ------------------------------------------------------------------------
