@@ -1,10 +1,12 @@
 #include "nerfslam/core/atomic_file.h"
 
 #include <fcntl.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <atomic>
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <random>
@@ -28,6 +30,29 @@ void fsyncPath(const fs::path& p, bool directory) {
   int err = errno;
   ::close(fd);
   if (rc != 0 && !directory) fail("{}: cannot flush to disk: {}", p.string(), std::strerror(err));
+}
+
+// Temporary files of `path` left by processes that died mid-write (kill -9, power cut): named
+// <stem>.tmp.<pid>.<n><ext> by uniqueSuffix() with a pid that no longer runs. Those of live
+// processes (another writer of the same file) are left alone.
+void removeStaleTemporaries(const fs::path& path) {
+  const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+  const std::string prefix = path.stem().string() + ".tmp.", ext = path.extension().string();
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.size() <= prefix.size() + ext.size() || name.compare(0, prefix.size(), prefix) != 0 ||
+        name.compare(name.size() - ext.size(), ext.size(), ext) != 0)
+      continue;
+    const std::string rest = name.substr(prefix.size(), name.size() - prefix.size() - ext.size());  // <pid>.<n>
+    const size_t dot = rest.find('.');
+    if (dot == 0 || dot == std::string::npos || rest.find_first_not_of("0123456789.") != std::string::npos) continue;
+    const long pid = std::strtol(rest.substr(0, dot).c_str(), nullptr, 10);
+    if (pid <= 0 || pid == static_cast<long>(::getpid())) continue;
+    if (::kill(static_cast<pid_t>(pid), 0) == 0 || errno != ESRCH) continue;  // alive (or not ours to judge)
+    std::error_code rm;
+    fs::remove(it->path(), rm);
+  }
 }
 
 }  // namespace
@@ -61,6 +86,7 @@ void AtomicOutput::commit() {
   if (ec) fail("{}: cannot replace file: {}", path_.string(), ec.message());
   committed_ = true;
   fsyncPath(path_.has_parent_path() ? path_.parent_path() : fs::path("."), true);
+  removeStaleTemporaries(path_);
 }
 
 void writeFileAtomic(const fs::path& path, const std::function<void(std::ostream&)>& writer) {

@@ -1,7 +1,11 @@
 #include "nerfslam/core/atomic_file.h"
 
+#include <unistd.h>
+
 #include <fstream>
 #include <sstream>
+
+#include <fmt/format.h>
 
 #include "nerfslam/core/error.h"
 #include "test_support.h"
@@ -30,6 +34,25 @@ TEST(AtomicFile, WritesAndReplaces) {
   writeStringAtomic(tmp / "a.txt", "second");
   EXPECT_EQ(slurp(tmp / "a.txt"), "second");
   EXPECT_EQ(countFiles(tmp.path()), 1u);  // no temporary file left behind
+}
+
+TEST(AtomicFile, CommitRemovesTemporariesOfDeadWritersOnly) {
+  test::TempDir tmp;
+  // A writer killed mid-write leaves <stem>.tmp.<pid>.<n><ext>. A dead pid: a child that has exited.
+  const auto child = test::runCommand("sh -c 'echo $$'");
+  const long dead = std::stol(child.output);
+  writeStringAtomic(tmp / fmt::format("a.tmp.{}.3.txt", dead), "partial");  // (itself written atomically)
+  writeStringAtomic(tmp / "a.tmp.1.0.txt", "pid 1 is alive: kept");
+  writeStringAtomic(tmp / fmt::format("a.tmp.{}.9.txt", static_cast<long>(::getpid())), "ours: kept");
+  writeStringAtomic(tmp / fmt::format("b.tmp.{}.1.txt", dead), "another file's: kept");
+  writeStringAtomic(tmp / fmt::format("a.tmp.{}.1.bin", dead), "another extension: kept");
+  writeStringAtomic(tmp / "a.txt", "complete");
+  EXPECT_EQ(slurp(tmp / "a.txt"), "complete");
+  EXPECT_FALSE(fs::exists(tmp / fmt::format("a.tmp.{}.3.txt", dead)));
+  EXPECT_TRUE(fs::exists(tmp / "a.tmp.1.0.txt"));
+  EXPECT_TRUE(fs::exists(tmp / fmt::format("a.tmp.{}.9.txt", static_cast<long>(::getpid()))));
+  EXPECT_TRUE(fs::exists(tmp / fmt::format("b.tmp.{}.1.txt", dead)));
+  EXPECT_TRUE(fs::exists(tmp / fmt::format("a.tmp.{}.1.bin", dead)));
 }
 
 TEST(AtomicFile, WriterFailureKeepsPreviousFile) {

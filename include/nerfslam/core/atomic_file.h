@@ -26,7 +26,8 @@ class AtomicOutput {
   // Same directory and extension as the destination (some writers pick the format by extension).
   const std::filesystem::path& tempPath() const { return temp_; }
   const std::filesystem::path& path() const { return path_; }
-  // fsyncs the temporary file, renames it over the destination, fsyncs the directory.
+  // fsyncs the temporary file, renames it over the destination, fsyncs the directory, and removes
+  // temporary files of the same destination left by processes that died while writing it.
   void commit();
 
  private:
