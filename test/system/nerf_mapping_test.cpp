@@ -4,7 +4,10 @@
 // The end-to-end test runs the whole system (`runSlam` with the NeRF) and checks its outputs.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <limits>
 #include <thread>
 
 #include <opencv2/imgproc.hpp>
@@ -115,6 +118,37 @@ TEST(NerfMapping, TrainsInItsThreadOnPublishedKeyframes) {
   nm.stop();
   EXPECT_GT(nm.stats().samples_per_second, 0.0);
   EXPECT_GT(fx.psnrAt(nm, 3), 12.0);
+}
+
+TEST(NerfMapping, DivergenceIsRolledBackAndTrainingGoesOn) {
+  // A forced NaN in the running trainer's model (as a diverging step would leave it): the next step
+  // detects the non-finite loss, rolls back to the last snapshot, counts it, and training goes on.
+  Fixture fx(8);
+  NerfMapping nm(*fx.map, fx.bus, testOptions());
+  nm.start();
+  for (const auto& ev : fx.events) EXPECT_EQ(fx.bus.publish(ev), 1);
+  ASSERT_TRUE(waitFor([&] { return nm.stats().views == 8 && nm.stats().steps >= 150; }, 180))
+      << "steps " << nm.stats().steps;
+  const double before = fx.psnrAt(nm, 3);
+  nm.withModel([](nerf::NerfModel& m) {
+    for (auto& a : m.field->parameters())
+      if (a.name == "color.w0") std::fill(a.data, a.data + a.size, std::numeric_limits<float>::quiet_NaN());
+    m.field->parametersChanged();
+  });
+  const int64_t steps_at_nan = nm.stats().steps;
+  ASSERT_TRUE(waitFor([&] { return nm.stats().rollbacks >= 1 && nm.stats().steps >= steps_at_nan + 50; }, 180))
+      << "rollbacks " << nm.stats().rollbacks << ", steps " << nm.stats().steps - steps_at_nan << " after the NaN";
+  nm.stop();
+  EXPECT_EQ(nm.stats().rollbacks, 1);
+  bool finite = true;
+  nm.withModel([&](nerf::NerfModel& m) {
+    for (auto& a : m.field->parameters())
+      for (size_t i = 0; i < a.size; ++i) finite = finite && std::isfinite(a.data[i]);
+  });
+  EXPECT_TRUE(finite) << "a non-finite parameter survived the rollback";
+  const double after = fx.psnrAt(nm, 3);
+  std::printf("PSNR at frame 3: %.2f dB before the NaN, %.2f dB 50+ steps after the rollback\n", before, after);
+  EXPECT_GT(after, before - 1.0);
 }
 
 TEST(NerfMapping, HeldOutViewsImproveWithTraining) {
