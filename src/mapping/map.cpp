@@ -481,11 +481,10 @@ size_t Map::numPoints() const {
   return points_.size();
 }
 
-std::vector<std::pair<KeyframeId, int>> Map::covisibleKeyframes(KeyframeId id, int min_shared) const {
-  auto lock = lockShared(mutex_);
+std::vector<std::pair<KeyframeId, int>> Map::covisibleLocked(KeyframeId id, int min_shared) const {
   auto kit = keyframes_.find(id);
   if (kit == keyframes_.end()) return {};
-  std::map<KeyframeId, int> counts;
+  std::unordered_map<KeyframeId, int> counts;
   for (PointId pid : kit->second.points) {
     if (pid == kNoPoint) continue;
     auto pit = points_.find(pid);
@@ -500,6 +499,11 @@ std::vector<std::pair<KeyframeId, int>> Map::covisibleKeyframes(KeyframeId id, i
     return a.second != b.second ? a.second > b.second : a.first > b.first;
   });
   return out;
+}
+
+std::vector<std::pair<KeyframeId, int>> Map::covisibleKeyframes(KeyframeId id, int min_shared) const {
+  auto lock = lockShared(mutex_);
+  return covisibleLocked(id, min_shared);
 }
 
 std::vector<PointId> Map::pointsSeenBy(const std::vector<KeyframeId>& kfs) const {
@@ -529,19 +533,8 @@ bool Map::localMapForTracking(KeyframeId ref, int max_keyframes, TrackingLocalMa
   m.structure_version = structureVersion();
   m.version = version();
   m.keyframes.assign(1, ref);
-  // Covisible keyframes of ref by shared points (ties: newer first), as covisibleKeyframes().
-  std::unordered_map<KeyframeId, int> counts;
-  for (PointId pid : rit->second.points) {
-    if (pid == kNoPoint) continue;
-    auto pit = points_.find(pid);
-    if (pit == points_.end()) continue;
-    for (const auto& [other, idx] : pit->second.observations)
-      if (other != ref) ++counts[other];
-  }
-  std::vector<std::pair<KeyframeId, int>> cov(counts.begin(), counts.end());
-  std::sort(cov.begin(), cov.end(), [](const auto& a, const auto& b) {
-    return a.second != b.second ? a.second > b.second : a.first > b.first;
-  });
+  // Covisible keyframes of ref by shared points (ties: newer first).
+  const auto cov = covisibleLocked(ref, 1);
   for (const auto& [k, c] : cov) {
     if (static_cast<int>(m.keyframes.size()) >= max_keyframes) break;
     m.keyframes.push_back(k);

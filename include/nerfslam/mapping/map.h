@@ -184,6 +184,7 @@ class Map {
 
  private:
   void eraseObservationLocked(PointId pid, KeyframeId kf);
+  std::vector<std::pair<KeyframeId, int>> covisibleLocked(KeyframeId id, int min_shared) const;
   void erasePointLocked(PointId pid);
   void updateAppearanceLocked(MapPoint& p);
   void bump() { version_.fetch_add(1, std::memory_order_acq_rel); }
