@@ -291,7 +291,9 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     std::vector<RelocalizationCandidate> cands;
     auto ids = map_->keyframeIds();
     int max_candidates = opt_.relocalization_candidates;
-    if (map_mode_ != MapMode::kSlam) {  // a loaded map: the camera may be anywhere in it, best-voted keyframes first
+    // A loaded map, localisation only, or lost: the camera may be anywhere in the map, so the
+    // keyframes that share the most descriptors with the frame are tried too (best-voted first).
+    if (map_mode_ != MapMode::kSlam || localize_only || res.quality == TrackingQuality::kLost) {
       const auto voted = keyframesByDescriptorVotes(*map_, *frame, opt_.relocalization_candidates);
       ids.insert(ids.end(), voted.rbegin(), voted.rend());
       max_candidates += static_cast<int>(voted.size());
