@@ -368,19 +368,26 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
   ASSERT_TRUE(ros::service::call(node + "/set_localization_only", loc));
   EXPECT_TRUE(loc.response.success) << loc.response.message;
   const double keyframes_before = diagValue(o, "keyframes"), processed_before = diagValue(o, "frames processed"),
-               tracked_before = diagValue(o, "frames tracked");
+               tracked_before = diagValue(o, "frames tracked"), received_before = diagValue(o, "frames received");
   const auto replay = nerfslam::test::runCommand(
       "timeout 60 '" NERFSLAM_PUBLISHER_PATH "' __name:=nerf_test_publisher2 _dataset:='" + seq.string() +
       "' _color:=true _max_frames:=60 _rate:=" + std::to_string(rate) +
       " _wait_for_subscribers:=true _exit_when_done:=true");
   EXPECT_EQ(replay.exit_code, 0) << replay.output;
-  EXPECT_TRUE(waitFor(60.0, [&] { return diagValue(o, "frames processed") >= processed_before + 60; }))
-      << "processed " << diagValue(o, "frames processed") - processed_before << " of the 60 replayed frames";
+  // The publisher starts when a subscriber (this test's own may be the first) is connected, so the
+  // node's connection can miss the first message: wait until the node has processed what it received.
+  EXPECT_TRUE(waitFor(60.0, [&] {
+    const double received = diagValue(o, "frames received") - received_before;
+    return received >= 55 && diagValue(o, "frames processed") - processed_before >= received;
+  })) << "received " << diagValue(o, "frames received") - received_before << ", processed "
+      << diagValue(o, "frames processed") - processed_before << " of the 60 replayed frames";
+  const double processed_replay = diagValue(o, "frames processed") - processed_before;
   const double tracked_replay = diagValue(o, "frames tracked") - tracked_before;
-  std::printf("localisation only: %g of 60 replayed frames tracked, keyframes %g -> %g\n", tracked_replay,
-              keyframes_before, diagValue(o, "keyframes"));
-  // Measured 60/60 (relocalised on the first replayed frame against the best-voted keyframe).
-  EXPECT_GE(tracked_replay, 45.0);
+  std::printf("localisation only: %g of %g replayed frames tracked, keyframes %g -> %g\n", tracked_replay,
+              processed_replay, keyframes_before, diagValue(o, "keyframes"));
+  // Measured 60/60 and 59/59 (relocalised on the first replayed frame against the best-voted keyframe).
+  EXPECT_GE(tracked_replay, 0.75 * processed_replay);
+  EXPECT_GE(processed_replay, 55.0);
   EXPECT_EQ(diagValue(o, "keyframes"), keyframes_before);
   loc.request.data = false;
   ASSERT_TRUE(ros::service::call(node + "/set_localization_only", loc));
