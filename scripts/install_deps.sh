@@ -26,6 +26,7 @@ ROS_PKGS=(
   libcv-bridge-dev libpcl-conversions-dev libpcl-ros-dev ros-message-generation ros-message-runtime
   libstd-srvs-dev libnav-msgs-dev libsensor-msgs-dev libvisualization-msgs-dev libgeometry-msgs-dev
   libstd-msgs-dev libdiagnostic-updater-dev python3-rostest librostest-dev python3-roslaunch rviz xvfb
+  python3-gencpp python3-genmsg python3-genpy
   python3-rostopic python3-sensor-msgs python3-geometry-msgs python3-nav-msgs python3-visualization-msgs python3-tf2-msgs
 )
 

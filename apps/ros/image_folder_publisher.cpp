@@ -28,6 +28,8 @@
 //   ~gt_child_frame        string  child frame of the ground-truth camera pose (default camera_ground_truth)
 //   ~wait_for_subscribers  bool    hold the first frame until image and camera_info have a
 //                                  subscriber (for tests and recording)                       (default false)
+//   ~min_subscribers       int     with ~wait_for_subscribers: that many subscribers (several
+//                                  nodes fed the same frames), >= 1                          (default 1)
 //   ~exit_when_done        bool    exit after the last frame instead of idling                (default false)
 // A frame whose image cannot be decoded is reported (ROS_ERROR naming the file) and skipped.
 #include <algorithm>
@@ -63,6 +65,7 @@ struct Params {
   std::string gt_parent_frame = "world";
   std::string gt_child_frame = "camera_ground_truth";
   bool wait_for_subscribers = false;
+  int min_subscribers = 1;
   bool exit_when_done = false;
 };
 
@@ -80,6 +83,7 @@ const char* const kKnownParams[] = {"dataset",
                                     "gt_parent_frame",
                                     "gt_child_frame",
                                     "wait_for_subscribers",
+                                    "min_subscribers",
                                     "exit_when_done"};
 
 Params readParams(const ros::NodeHandle& pnh) {
@@ -98,6 +102,7 @@ Params readParams(const ros::NodeHandle& pnh) {
   pnh.param("gt_parent_frame", p.gt_parent_frame, p.gt_parent_frame);
   pnh.param("gt_child_frame", p.gt_child_frame, p.gt_child_frame);
   pnh.param("wait_for_subscribers", p.wait_for_subscribers, p.wait_for_subscribers);
+  pnh.param("min_subscribers", p.min_subscribers, p.min_subscribers);
   pnh.param("exit_when_done", p.exit_when_done, p.exit_when_done);
 
   // Parameters under ~ that we do not know are most likely typos: say so.
@@ -119,6 +124,7 @@ std::string validate(const Params& p) {
   if (p.dataset.empty()) return "parameter ~dataset is required (\"[kind:]PATH\")";
   if (!std::isfinite(p.rate) || p.rate < 0.0) return "parameter ~rate must be >= 0 (0 = dataset timestamps)";
   if (!std::isfinite(p.speed) || p.speed <= 0.0) return "parameter ~speed must be > 0";
+  if (p.min_subscribers < 1) return "parameter ~min_subscribers must be >= 1";
   if (p.start < 0) return "parameter ~start must be >= 0";
   if (p.max_frames < 0) return "parameter ~max_frames must be >= 0 (0 = all)";
   if (p.frame_id.empty()) return "parameter ~frame_id must not be empty";
@@ -147,6 +153,7 @@ void printParams(const Params& p) {
   ROS_INFO("  ~gt_parent_frame      = %s", p.gt_parent_frame.c_str());
   ROS_INFO("  ~gt_child_frame       = %s", p.gt_child_frame.c_str());
   ROS_INFO("  ~wait_for_subscribers = %s", p.wait_for_subscribers ? "true" : "false");
+  ROS_INFO("  ~min_subscribers      = %d", p.min_subscribers);
   ROS_INFO("  ~exit_when_done       = %s", p.exit_when_done ? "true" : "false");
 }
 
@@ -194,10 +201,12 @@ int run(int argc, char** argv) {
   }
 
   if (p.wait_for_subscribers) {
-    ROS_INFO("waiting for subscribers on %s and %s", cam_pub.getTopic().c_str(), cam_pub.getInfoTopic().c_str());
-    // getNumSubscribers() is the larger of the image and camera_info counts: wait for the first
-    // connection, then give the second one (same subscriber) time to complete.
-    while (ros::ok() && cam_pub.getNumSubscribers() == 0) ros::WallDuration(0.02).sleep();
+    ROS_INFO("waiting for %d subscriber(s) on %s and %s", p.min_subscribers, cam_pub.getTopic().c_str(),
+             cam_pub.getInfoTopic().c_str());
+    // getNumSubscribers() is the larger of the image and camera_info counts: wait for the
+    // connections, then give the other topic's (same subscribers) time to complete.
+    while (ros::ok() && cam_pub.getNumSubscribers() < static_cast<uint32_t>(p.min_subscribers))
+      ros::WallDuration(0.02).sleep();
     ros::WallDuration(0.5).sleep();
   }
 

@@ -1,4 +1,9 @@
 // nerfslam_node: the monocular SLAM system (nerfslam::SlamSystem) with its NeRF dense map as a ROS 1 node.
+// tracking_node (same code, SlamNodeMode::kTracking, slam_node.h): the same without the NeRF, which it
+// leaves to nerf_mapping_node: it publishes ~keyframes_out (nerfslam/MapKeyframe, every keyframe the
+// mapping inserts, with its colour image) and ~keyframe_poses (nerfslam/KeyframePoses, the sent
+// keyframes' poses after bundle adjustment, at most every ~keyframe_poses_period s, default 0.5) from
+// a sender thread (keyframe_link.h); ~nerf is not read and the ~nerf_* topics are not advertised.
 //
 // Input: `image` + `camera_info` through image_transport's CameraSubscriber (remap them, e.g.
 // image:=/camera/image_raw camera_info:=/camera/camera_info). With ~camera_yaml set, the calibration
@@ -73,34 +78,26 @@
 //                                                       take CPU from training)
 //   ~map_dir            string  "nerfslam_map"          folder ~save_map writes (relative: to the
 //                                                       node's working directory, ROS_HOME under roslaunch)
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
+//   ~keyframe_poses_period double 0.5 (> 0)             tracking_node: s between ~keyframe_poses updates
+// The NeRF topics, ~save_map and the parameters from ~map_frame on are shared with nerf_mapping_node
+// (nerf_publisher.h).
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
-#include <filesystem>
-#include <functional>
-#include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
-#include <type_traits>
 #include <vector>
 
-#include <cv_bridge/cv_bridge.h>
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <image_transport/image_transport.h>
 #include <nav_msgs/Path.h>
-#include <ros/callback_queue.h>
 #include <ros/ros.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
@@ -113,25 +110,24 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/mapping/bounded_queue.h"
-#include "nerfslam/nerf/export.h"
-#include "nerfslam/nerf/field.h"
-#include "nerfslam/nerf/model_io.h"
-#include "nerfslam/nerf/nerf_options.h"
-#include "nerfslam/nerf/renderer.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam/system/slam_system.h"
 #include "nerfslam_ros/conversions.h"
+#include "nerfslam_ros/keyframe_link.h"
+#include "nerfslam_ros/nerf_publisher.h"
+#include "nerfslam_ros/slam_node.h"
 
 namespace {
 
 using nerfslam::Camera;
 using nerfslam::SE3;
 using nerfslam::SlamSystem;
+using nerfslam::rosnode::SlamNodeMode;
 
 struct Params {
-  std::string map_frame = "map";
-  std::string camera_frame = "camera_optical_frame";
+  SlamNodeMode mode = SlamNodeMode::kFull;
+  nerfslam::rosnode::NerfParams nerf;  // ~map_frame, ~camera_frame, ~nerf*, ~map_dir (nerf_publisher.h)
   std::string camera_yaml;
   int queue_size = 2;
   bool wait_for_mapping = false;
@@ -139,32 +135,14 @@ struct Params {
   int weak_inliers = 60;
   double frustum_scale = 0.5;
   int max_features = 2000;
-  bool nerf = true;
-  int nerf_threads = 1;
-  int nerf_nice = 19;
-  double nerf_publish_period = 2.0;
-  double nerf_cloud_period = 10.0;
-  std::string nerf_cloud_source = "depth";
-  int nerf_cloud_views = 4;
-  int nerf_cloud_stride = 2;
-  int nerf_render_threads = 1;
-  int nerf_render_nice = 10;
-  std::string map_dir = "nerfslam_map";
+  double keyframe_poses_period = 0.5;  // tracking_node only
 };
-
-// A relative ~map_dir is taken relative to the working directory (ROS_HOME under roslaunch).
-std::filesystem::path resolveMapDir(const std::string& dir) {
-  std::error_code ec;
-  const std::filesystem::path abs = std::filesystem::absolute(dir, ec);
-  return ec ? std::filesystem::path(dir) : abs.lexically_normal();
-}
 
 bool isColourEncoding(const std::string& e) { return e == "bgr8" || e == "rgb8" || e == "bgra8" || e == "rgba8"; }
 
 // Reads, prints and validates the parameters; returns an error message or "".
 std::string loadParams(ros::NodeHandle& pnh, Params& p) {
-  pnh.param("map_frame", p.map_frame, p.map_frame);
-  pnh.param("camera_frame", p.camera_frame, p.camera_frame);
+  const bool tracking = p.mode == SlamNodeMode::kTracking;
   pnh.param("camera_yaml", p.camera_yaml, p.camera_yaml);
   pnh.param("queue_size", p.queue_size, p.queue_size);
   pnh.param("wait_for_mapping", p.wait_for_mapping, p.wait_for_mapping);
@@ -172,20 +150,8 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   pnh.param("weak_inliers", p.weak_inliers, p.weak_inliers);
   pnh.param("frustum_scale", p.frustum_scale, p.frustum_scale);
   pnh.param("max_features", p.max_features, p.max_features);
-  pnh.param("nerf", p.nerf, p.nerf);
-  pnh.param("nerf_threads", p.nerf_threads, p.nerf_threads);
-  pnh.param("nerf_nice", p.nerf_nice, p.nerf_nice);
-  pnh.param("nerf_publish_period", p.nerf_publish_period, p.nerf_publish_period);
-  pnh.param("nerf_cloud_period", p.nerf_cloud_period, p.nerf_cloud_period);
-  pnh.param("nerf_cloud_source", p.nerf_cloud_source, p.nerf_cloud_source);
-  pnh.param("nerf_cloud_views", p.nerf_cloud_views, p.nerf_cloud_views);
-  pnh.param("nerf_cloud_stride", p.nerf_cloud_stride, p.nerf_cloud_stride);
-  pnh.param("nerf_render_threads", p.nerf_render_threads, p.nerf_render_threads);
-  pnh.param("nerf_render_nice", p.nerf_render_nice, p.nerf_render_nice);
-  pnh.param("map_dir", p.map_dir, p.map_dir);
-  ROS_INFO("nerfslam_node parameters:");
-  ROS_INFO("  ~map_frame = %s", p.map_frame.c_str());
-  ROS_INFO("  ~camera_frame = %s", p.camera_frame.c_str());
+  if (tracking) pnh.param("keyframe_poses_period", p.keyframe_poses_period, p.keyframe_poses_period);
+  ROS_INFO("%s parameters:", tracking ? "tracking_node" : "nerfslam_node");
   ROS_INFO("  ~camera_yaml = %s", p.camera_yaml.empty() ? "(none: camera_info)" : p.camera_yaml.c_str());
   ROS_INFO("  ~queue_size = %d", p.queue_size);
   ROS_INFO("  ~wait_for_mapping = %s", p.wait_for_mapping ? "true" : "false");
@@ -193,20 +159,10 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   ROS_INFO("  ~weak_inliers = %d", p.weak_inliers);
   ROS_INFO("  ~frustum_scale = %g", p.frustum_scale);
   ROS_INFO("  ~max_features = %d", p.max_features);
-  ROS_INFO("  ~nerf = %s", p.nerf ? "true" : "false");
-  ROS_INFO("  ~nerf_threads = %d", p.nerf_threads);
-  ROS_INFO("  ~nerf_nice = %d", p.nerf_nice);
-  ROS_INFO("  ~nerf_publish_period = %g s", p.nerf_publish_period);
-  ROS_INFO("  ~nerf_cloud_period = %g s", p.nerf_cloud_period);
-  ROS_INFO("  ~nerf_cloud_source = %s", p.nerf_cloud_source.c_str());
-  ROS_INFO("  ~nerf_cloud_views = %d", p.nerf_cloud_views);
-  ROS_INFO("  ~nerf_cloud_stride = %d", p.nerf_cloud_stride);
-  ROS_INFO("  ~nerf_render_threads = %d", p.nerf_render_threads);
-  ROS_INFO("  ~nerf_render_nice = %d", p.nerf_render_nice);
-  ROS_INFO("  ~map_dir = %s (%s)", p.map_dir.c_str(), resolveMapDir(p.map_dir).c_str());
-  if (p.map_frame.empty()) return "~map_frame must not be empty";
-  if (p.camera_frame.empty()) return "~camera_frame must not be empty";
-  if (p.map_frame == p.camera_frame) return "~map_frame and ~camera_frame must differ";
+  if (tracking) ROS_INFO("  ~keyframe_poses_period = %g s", p.keyframe_poses_period);
+  // tracking_node: the NeRF runs in nerf_mapping_node (~nerf is not read).
+  if (tracking) p.nerf.nerf = false;
+  if (std::string err = nerfslam::rosnode::loadNerfParams(pnh, p.nerf, !tracking); !err.empty()) return err;
   if (p.queue_size < 1) return "~queue_size must be >= 1 (got " + std::to_string(p.queue_size) + ")";
   if (!(p.map_points_period >= 0) || !std::isfinite(p.map_points_period))
     return "~map_points_period must be >= 0 (got " + std::to_string(p.map_points_period) + ")";
@@ -214,28 +170,8 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   if (!(p.frustum_scale > 0) || !std::isfinite(p.frustum_scale))
     return "~frustum_scale must be > 0 (got " + std::to_string(p.frustum_scale) + ")";
   if (p.max_features < 50) return "~max_features must be >= 50 (got " + std::to_string(p.max_features) + ")";
-  if (p.nerf_threads < 1 || p.nerf_threads > 64)
-    return "~nerf_threads must be in 1..64 (got " + std::to_string(p.nerf_threads) + ")";
-  if (p.nerf_nice < 0 || p.nerf_nice > 19)
-    return "~nerf_nice must be in 0..19 (got " + std::to_string(p.nerf_nice) + ")";
-  if (!(p.nerf_publish_period > 0) || !std::isfinite(p.nerf_publish_period))
-    return "~nerf_publish_period must be > 0 (got " + std::to_string(p.nerf_publish_period) + ")";
-  if (!(p.nerf_cloud_period > 0) || !std::isfinite(p.nerf_cloud_period))
-    return "~nerf_cloud_period must be > 0 (got " + std::to_string(p.nerf_cloud_period) + ")";
-  if (p.nerf_cloud_source != "depth" && p.nerf_cloud_source != "density")
-    return "~nerf_cloud_source must be depth or density (got '" + p.nerf_cloud_source + "')";
-  if (p.nerf_cloud_views < 1 || p.nerf_cloud_views > 64)
-    return "~nerf_cloud_views must be in 1..64 (got " + std::to_string(p.nerf_cloud_views) + ")";
-  if (p.nerf_cloud_stride < 1 || p.nerf_cloud_stride > 16)
-    return "~nerf_cloud_stride must be in 1..16 (got " + std::to_string(p.nerf_cloud_stride) + ")";
-  if (p.nerf_render_threads < 1 || p.nerf_render_threads > 64)
-    return "~nerf_render_threads must be in 1..64 (got " + std::to_string(p.nerf_render_threads) + ")";
-  if (p.nerf_render_nice < 0 || p.nerf_render_nice > 19)
-    return "~nerf_render_nice must be in 0..19 (got " + std::to_string(p.nerf_render_nice) + ")";
-  if (p.map_dir.empty()) return "~map_dir must not be empty";
-  if (p.nerf && p.nerf_render_nice > p.nerf_nice)
-    ROS_WARN("~nerf_render_nice (%d) > ~nerf_nice (%d): NeRF training will starve the NeRF topics' renders",
-             p.nerf_render_nice, p.nerf_nice);
+  if (!(p.keyframe_poses_period > 0) || !std::isfinite(p.keyframe_poses_period))
+    return "~keyframe_poses_period must be > 0 (got " + std::to_string(p.keyframe_poses_period) + ")";
   return "";
 }
 
@@ -244,101 +180,13 @@ struct QueuedFrame {
   std::shared_ptr<const Camera> camera;
 };
 
+// The last tracked pose (what ~nerf_view is rendered from).
+using TrackedPose = nerfslam::rosnode::ViewPose;
 // What the NeRF publisher thread and the services need of the running system. The worker replaces it
 // (under handle_mutex_) when it starts or resets the system; readers copy the shared_ptr and use the
 // system without blocking tracking (NerfMapping, Map and saveMapFolder are thread-safe). The last
 // holder destroys the system (after the worker's finish()).
-struct SystemHandle {
-  std::shared_ptr<SlamSystem> system;
-  std::shared_ptr<const Camera> camera;
-  nerfslam::SystemOptions options;
-  uint64_t generation = 0;
-};
-
-// The last tracked pose (what ~nerf_view is rendered from).
-struct TrackedPose {
-  SE3 T_world_cam;
-  ros::Time stamp;
-  uint64_t generation = 0;
-};
-
-double wallSeconds() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
-
-// Lowers the calling thread's priority (Linux: per-thread niceness; threads it starts inherit it).
-void lowerThreadPriority(int increment) {
-  if (increment <= 0) return;
-  const pid_t tid = static_cast<pid_t>(syscall(SYS_gettid));
-  if (setpriority(PRIO_PROCESS, static_cast<id_t>(tid), getpriority(PRIO_PROCESS, static_cast<id_t>(tid)) + increment) != 0)
-    ROS_WARN("could not lower the NeRF publisher thread's priority");
-}
-
-// A copy of the NeRF model that the NeRF publisher thread renders, exports and saves from, so that
-// NeRF training pauses only while the copy is taken (a memcpy of the parameters and the occupancy
-// grid, under NerfMapping::withModel), not for a whole render. Costs one model's memory (the size of
-// a saved model: ~70 MB with the default 2^19-entry hash tables); the buffers are reused.
-class ModelCopy {
- public:
-  // Copies the model; false when there is none yet. Returns the wait for the lock and the copy time.
-  bool update(const nerfslam::NerfMapping& nerf, double* wait_ms, double* copy_ms) {
-    const double t0 = now();
-    double t1 = t0;
-    const bool ok = nerf.withModel([&](nerfslam::nerf::NerfModel& src) {
-      t1 = now();
-      copyFrom(src);
-    });
-    if (!ok) return false;
-    model_.field->parametersChanged();  // derived copies of the weights, outside the lock
-    if (wait_ms) *wait_ms = 1e3 * (t1 - t0);
-    if (copy_ms) *copy_ms = 1e3 * (now() - t1);
-    return true;
-  }
-  nerfslam::nerf::NerfModel& model() { return model_; }
-
- private:
-  static double now() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
-  // The field's structure, from its configuration's scalar options.
-  struct KeyVisitor {
-    std::string key;
-    template <class T, class... Rest>
-    void operator()(const char* name, T& value, Rest&&...) {
-      if constexpr (std::is_arithmetic_v<T>) key += std::string(name) + "=" + std::to_string(value) + ";";
-    }
-  };
-  static std::string configKey(nerfslam::nerf::FieldConfig config) {
-    KeyVisitor v;
-    config.visit(v);
-    return v.key;
-  }
-  void copyFrom(nerfslam::nerf::NerfModel& src) {
-    const std::string key = configKey(src.field->config());
-    auto src_params = src.field->parameters();
-    bool same = model_.field && key == key_;
-    std::vector<nerfslam::nerf::FloatArray> dst_params;
-    if (same) {
-      dst_params = model_.field->parameters();
-      same = dst_params.size() == src_params.size();
-      for (size_t i = 0; same && i < src_params.size(); ++i)
-        same = dst_params[i].name == src_params[i].name && dst_params[i].size == src_params[i].size;
-    }
-    if (!same) {  // first copy, or another field structure (rare: allocated under the lock)
-      model_.field = std::make_unique<nerfslam::nerf::RadianceField>(src.field->config(), 0);
-      key_ = key;
-      dst_params = model_.field->parameters();
-    }
-    for (size_t i = 0; i < src_params.size(); ++i)
-      std::memcpy(dst_params[i].data, src_params[i].data, src_params[i].size * sizeof(float));
-    model_.field_config = src.field_config;
-    model_.scene = src.scene;
-    model_.training_steps = src.training_steps;
-    if (model_.grid)
-      *model_.grid = *src.grid;
-    else
-      model_.grid = std::make_unique<nerfslam::nerf::OccupancyGrid>(*src.grid);
-  }
-
-  nerfslam::nerf::NerfModel model_;
-  std::string key_;
-};
+using SystemHandle = nerfslam::rosnode::MapSource;
 
 // Times a callback into running statistics (mean and max, ms).
 class CallbackTimer {
@@ -375,26 +223,24 @@ class NerfslamNode {
                yaml_camera_->cy);
     }
     pose_pub_ = pnh_.advertise<geometry_msgs::PoseStamped>("pose", 10);
+    if (tracking()) sender_ = std::make_unique<nerfslam::rosnode::KeyframeSender>(pnh_, mapFrame(), p_.keyframe_poses_period);
     path_pub_ = pnh_.advertise<nav_msgs::Path>("path", 2, true);
     points_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("map_points", 2, true);
     keyframes_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("keyframes", 2, true);
     state_pub_ = pnh_.advertise<std_msgs::String>("tracking_state", 10, true);
     reset_srv_ = pnh_.advertiseService("reset", &NerfslamNode::onReset, this);
     localization_srv_ = pnh_.advertiseService("set_localization_only", &NerfslamNode::onSetLocalizationOnly, this);
-    // The NeRF publisher thread's queue: the NeRF topics' renders and the map services (slow work
-    // that must not delay image callbacks or tracking).
-    slow_nh_ = pnh_;
-    slow_nh_.setCallbackQueue(&slow_queue_);
-    save_srv_ = slow_nh_.advertiseService("save_map", &NerfslamNode::onSaveMap, this);
-    if (p_.nerf) {
-      nerf_view_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_view", 1);
-      nerf_depth_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_depth", 1);
-      nerf_cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("nerf_cloud", 1, true);
-    }
+    // The NeRF topics and ~save_map, on the NeRF publisher thread.
+    nerf_pub_ = std::make_unique<nerfslam::rosnode::NerfPublisher>(
+        pnh_, p_.nerf, [this] { return handle(); },
+        [this]() -> std::optional<TrackedPose> {
+          std::lock_guard<std::mutex> lock(pose_mutex_);
+          return last_pose_;
+        });
     publishState("initializing");
 
     updater_.setHardwareID("nerfslam");
-    updater_.add("nerfslam_node", this, &NerfslamNode::diagnose);
+    updater_.add(tracking() ? "tracking_node" : "nerfslam_node", this, &NerfslamNode::diagnose);
     diag_timer_ =
         nh_.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) { updater_.force_update(); });
 
@@ -405,36 +251,47 @@ class NerfslamNode {
     }
     wait_timer_ = nh_.createWallTimer(ros::WallDuration(2.0), [this](const ros::WallTimerEvent&) { checkInput(); });
     worker_ = std::thread([this] { work(); });
-    slow_thread_ = std::thread([this] { slowWork(); });
+    nerf_pub_->start();
+    if (sender_) sender_->start();
   }
 
   ~NerfslamNode() {
     stopping_ = true;
     queue_.close();
     if (worker_.joinable()) worker_.join();
-    if (slow_thread_.joinable()) slow_thread_.join();
+    nerf_pub_->stop();
+    if (sender_) {
+      sender_->stop();
+      sender_->attach(nullptr);
+    }
     setHandle(nullptr);
     std::lock_guard<std::mutex> lock(system_mutex_);
     if (system_) system_->finish(false);
     // stdout: rosconsole no longer prints once ros::shutdown() has run.
     std::printf(
-        "nerfslam_node: %lu frames received, %lu processed, %lu tracked, %lu dropped (queue full), refused: "
+        "%s: %lu frames received, %lu processed, %lu tracked, %lu dropped (queue full), refused: "
         "%lu encoding, %lu size, %lu timestamp; mean tracking %.1f ms; image callback mean %.3f ms, max %.3f ms; "
-        "frame latency (stamp to pose, live stamps) mean %.1f ms, max %.1f ms; "
-        "%lu NeRF renders (mean %.0f ms), %lu NeRF clouds, %lu map saves (%lu failed)\n",
-        static_cast<unsigned long>(received_), static_cast<unsigned long>(processed_),
+        "frame latency (stamp to pose, live stamps) mean %.1f ms, max %.1f ms; %s%s\n",
+        tracking() ? "tracking_node" : "nerfslam_node", static_cast<unsigned long>(received_),
+        static_cast<unsigned long>(processed_),
         static_cast<unsigned long>(tracked_), static_cast<unsigned long>(queue_.dropped()),
         static_cast<unsigned long>(refused_encoding_), static_cast<unsigned long>(refused_size_),
         static_cast<unsigned long>(refused_stamp_), processed_ > 0 ? tracking_ms_sum_.load() / processed_ : 0.0,
         callbacks_ > 0 ? callback_ms_sum_.load() / callbacks_ : 0.0, callback_ms_max_.load(),
         latency_count_ > 0 ? latency_ms_sum_.load() / latency_count_ : 0.0, latency_ms_max_.load(),
-        static_cast<unsigned long>(nerf_renders_), nerf_renders_ > 0 ? nerf_render_ms_sum_.load() / nerf_renders_ : 0.0,
-        static_cast<unsigned long>(nerf_clouds_), static_cast<unsigned long>(map_saves_),
-        static_cast<unsigned long>(map_save_failures_));
+        nerf_pub_->summary().c_str(),
+        sender_ ? ("; " + std::to_string(sender_->keyframesSent()) + " keyframes and " +
+                   std::to_string(sender_->poseUpdatesSent()) + " pose updates sent")
+                      .c_str()
+                : "");
     std::fflush(stdout);
   }
 
  private:
+  bool tracking() const { return p_.mode == SlamNodeMode::kTracking; }
+  const std::string& mapFrame() const { return p_.nerf.map_frame; }
+  const std::string& cameraFrame() const { return p_.nerf.camera_frame; }
+
   // ---- Callbacks: checks and enqueueing only ----
   void onCamera(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
     const CallbackTimer timer(callback_ms_sum_, callback_ms_max_, callbacks_);
@@ -540,6 +397,7 @@ class NerfslamNode {
       std::unique_lock<std::mutex> lock(system_mutex_);
       if (reset_requested_.exchange(false) && system_) {
         setHandle(nullptr);  // the NeRF publisher and the services stop using it
+        if (sender_) sender_->attach(nullptr);
         system_->finish(false);
         system_.reset();  // destroyed here, or by the last reader still holding it
         ++resets_;
@@ -548,9 +406,9 @@ class NerfslamNode {
         nerfslam::SystemOptions opt;
         opt.tracking.features.max_features = p_.max_features;
         opt.lockstep = false;
-        opt.nerf.enabled = p_.nerf;
-        opt.nerf.threads = p_.nerf_threads;
-        opt.nerf.nice_increment = p_.nerf_nice;
+        opt.nerf.enabled = p_.nerf.nerf;
+        opt.nerf.threads = p_.nerf.nerf_threads;
+        opt.nerf.nice_increment = p_.nerf.nerf_nice;
         try {
           system_ = std::make_shared<SlamSystem>(*item->camera, opt);
           worker_camera_ = item->camera;
@@ -558,19 +416,27 @@ class NerfslamNode {
           ROS_ERROR_THROTTLE(5.0, "cannot start the SLAM system: %s", e.what());
           continue;
         }
+        // Before the first frame: every keyframe the mapping inserts reaches ~keyframes_out.
+        if (sender_) sender_->attach(system_);
         auto h = std::make_shared<SystemHandle>();
-        h->system = system_;
+        h->owner = system_;
+        h->map = &system_->map();
+        h->nerf = system_->nerf();
         h->camera = item->camera;
         h->options = opt;
         h->generation = ++generation_;
         setHandle(std::move(h));
         ROS_INFO("SLAM system started on %dx%d images%s", item->camera->width, item->camera->height,
-                 p_.nerf ? " with the NeRF mapping thread" : " (sparse only: ~nerf is false)");
+                 p_.nerf.nerf ? " with the NeRF mapping thread"
+                 : tracking() ? " (sparse only; keyframes go out on ~keyframes_out)"
+                              : " (sparse only: ~nerf is false)");
       }
       const auto& msg = *item->image;
-      // The NeRF trains on colour: colour encodings go in as BGR (tracking converts to grey itself).
-      const bool colour = p_.nerf && isColourEncoding(msg.encoding);
-      if (p_.nerf && !colour && !warned_grey_input_) {
+      // The NeRF trains on colour: colour encodings go in as BGR (tracking converts to grey itself);
+      // the tracking node keeps them for the keyframes it sends to nerf_mapping_node.
+      const bool wants_colour = p_.nerf.nerf || tracking();
+      const bool colour = wants_colour && isColourEncoding(msg.encoding);
+      if (wants_colour && !colour && !warned_grey_input_) {
         warned_grey_input_ = true;
         ROS_WARN("images are '%s': the NeRF trains on grey (publish bgr8/rgb8 for a colour NeRF)", msg.encoding.c_str());
       }
@@ -640,21 +506,21 @@ class NerfslamNode {
     }
     publishState(stateName(rec));
     if (rec.tracked) {
-      tf_.sendTransform(nerfslam::rosbridge::toTransformStamped(rec.T_world_cam, p_.map_frame, p_.camera_frame, stamp));
+      tf_.sendTransform(nerfslam::rosbridge::toTransformStamped(rec.T_world_cam, mapFrame(), cameraFrame(), stamp));
       geometry_msgs::PoseStamped ps;
       ps.header.stamp = stamp;
-      ps.header.frame_id = p_.map_frame;
+      ps.header.frame_id = mapFrame();
       ps.pose = nerfslam::rosbridge::toPose(rec.T_world_cam);
       pose_pub_.publish(ps);
     }
     if (system_->initialized()) {
       nav_msgs::Path path;
       path.header.stamp = stamp;
-      path.header.frame_id = p_.map_frame;
+      path.header.frame_id = mapFrame();
       for (const auto& e : system_->trajectory()) {
         geometry_msgs::PoseStamped ps;
         ps.header.stamp = ros::Time(e.timestamp);
-        ps.header.frame_id = p_.map_frame;
+        ps.header.frame_id = mapFrame();
         ps.pose = nerfslam::rosbridge::toPose(e.pose);
         path.poses.push_back(ps);
       }
@@ -677,7 +543,7 @@ class NerfslamNode {
     }
     sensor_msgs::PointCloud2 cloud;
     cloud.header.stamp = stamp;
-    cloud.header.frame_id = p_.map_frame;
+    cloud.header.frame_id = mapFrame();
     sensor_msgs::PointCloud2Modifier mod(cloud);
     mod.setPointCloud2Fields(4, "x", 1, sensor_msgs::PointField::FLOAT32, "y", 1, sensor_msgs::PointField::FLOAT32, "z",
                              1, sensor_msgs::PointField::FLOAT32, "intensity", 1, sensor_msgs::PointField::FLOAT32);
@@ -696,7 +562,7 @@ class NerfslamNode {
     visualization_msgs::MarkerArray arr;
     visualization_msgs::Marker m;
     m.header.stamp = stamp;
-    m.header.frame_id = p_.map_frame;
+    m.header.frame_id = mapFrame();
     m.ns = "keyframes";
     m.id = 0;
     m.type = visualization_msgs::Marker::LINE_LIST;
@@ -751,207 +617,6 @@ class NerfslamNode {
     return handle_;
   }
 
-  // ---- NeRF publisher thread: renders and services (never the image callbacks or the worker) ----
-  void slowWork() {
-    lowerThreadPriority(p_.nerf_render_nice);
-    double next_view = wallSeconds() + p_.nerf_publish_period;
-    double next_cloud = wallSeconds() + p_.nerf_cloud_period;
-    while (!stopping_ && ros::ok()) {
-      slow_queue_.callAvailable(ros::WallDuration(0.05));
-      if (!p_.nerf || stopping_) continue;
-      // A render longer than its period is followed by half a period of rest, so the thread never
-      // renders back to back.
-      double now = wallSeconds();
-      if (now >= next_view) {
-        publishNerfView();
-        const double end = wallSeconds();
-        next_view = std::max(now + p_.nerf_publish_period, end + 0.5 * p_.nerf_publish_period);
-      }
-      now = wallSeconds();
-      if (now >= next_cloud) {
-        publishNerfCloud();
-        const double end = wallSeconds();
-        next_cloud = std::max(now + p_.nerf_cloud_period, end + 0.5 * p_.nerf_cloud_period);
-      }
-    }
-  }
-
-  // A new model is rendered only after its occupancy grid's second update (TrainOptions::
-  // grid_update_interval steps, the interval NerfMapping trains with): before it nearly every cell is
-  // still marked occupied and a render costs ~5x more samples (measured at 160x120: 4.2 M samples,
-  // 218 per ray, at step 3; 0.6 M, 30 per ray, at step 17).
-  static bool modelReady(const nerfslam::NerfMapping& nerf) {
-    return nerf.stats().steps > nerfslam::nerf::TrainOptions{}.grid_update_interval && nerf.hasModel();
-  }
-
-  void publishNerfView() {
-    if (nerf_view_pub_.getNumSubscribers() == 0 && nerf_depth_pub_.getNumSubscribers() == 0) return;
-    const auto h = handle();
-    if (!h || !h->system->nerf()) return;
-    nerfslam::NerfMapping& nerf = *h->system->nerf();
-    if (!modelReady(nerf)) return;
-    TrackedPose pose;
-    {
-      std::lock_guard<std::mutex> lock(pose_mutex_);
-      if (!last_pose_ || last_pose_->generation != h->generation) return;
-      pose = *last_pose_;
-    }
-    const Camera cam = nerf.trainingCamera();
-    nerfslam::nerf::RenderOptions ro;
-    ro.threads = p_.nerf_render_threads;
-    ro.normals = false;
-    ro.background = {0.0, 0.0, 0.0};
-    nerfslam::nerf::RenderResult r;
-    double t0 = 0;
-    try {
-      if (!updateModelCopy(nerf)) return;
-      t0 = wallSeconds();
-      r = nerfslam::nerf::renderView(model_copy_.model(), cam, pose.T_world_cam, ro);
-    } catch (const std::exception& e) {
-      ++nerf_render_errors_;
-      ROS_ERROR_THROTTLE(10.0, "NeRF render failed: %s", e.what());
-      return;
-    }
-    const double ms = 1e3 * (wallSeconds() - t0);
-    nerf_samples_per_ray_last_ = double(r.samples) / std::max(1, cam.width * cam.height);
-    nerf_occupied_last_ = model_copy_.model().grid->occupiedFraction();
-    std_msgs::Header header;
-    header.stamp = pose.stamp;
-    header.frame_id = p_.camera_frame;
-    if (nerf_view_pub_.getNumSubscribers() > 0) {
-      cv::Mat rgb8;
-      r.rgb.convertTo(rgb8, CV_8UC3, 255.0);  // saturating: [0,1] -> 0..255, RGB order
-      nerf_view_pub_.publish(cv_bridge::CvImage(header, "rgb8", rgb8).toImageMsg());
-    }
-    if (nerf_depth_pub_.getNumSubscribers() > 0) {
-      cv::Mat depth = r.depth.clone();
-      depth.setTo(std::numeric_limits<float>::quiet_NaN(), depth <= 0.0f);  // REP 118: NaN = no depth
-      nerf_depth_pub_.publish(nerfslam::rosbridge::toImageMsg(depth, header));
-    }
-    ++nerf_renders_;
-    nerf_render_ms_last_ = ms;
-    nerf_render_ms_sum_.store(nerf_render_ms_sum_.load() + ms);
-  }
-
-  void publishNerfCloud() {
-    if (nerf_cloud_pub_.getNumSubscribers() == 0) return;
-    const auto h = handle();
-    if (!h || !h->system->nerf()) return;
-    nerfslam::NerfMapping& nerf = *h->system->nerf();
-    if (!modelReady(nerf)) return;
-    nerfslam::nerf::ExportOptions xo;
-    xo.threads = p_.nerf_render_threads;
-    std::vector<nerfslam::nerf::PosedCamera> views;
-    if (p_.nerf_cloud_source == "depth") {
-      // Rendered at 1/stride of the training resolution with a point per pixel: the points
-      // depthPointCloud would keep with pixel_stride, for 1/stride^2 of the rays.
-      const Camera train = nerf.trainingCamera();
-      const int w = std::max(1, static_cast<int>(std::lround(double(train.width) / p_.nerf_cloud_stride)));
-      const int hgt = std::max(1, static_cast<int>(std::lround(double(train.height) / p_.nerf_cloud_stride)));
-      Camera cam = train.scaled(double(w) / train.width);
-      cam.width = w;
-      cam.height = hgt;
-      xo.pixel_stride = 1;
-      const std::vector<SE3> poses = nerf.viewPoses();
-      const size_t n = std::min(poses.size(), static_cast<size_t>(p_.nerf_cloud_views));
-      for (size_t i = poses.size() - n; i < poses.size(); ++i) views.push_back({cam, poses[i]});
-      if (views.empty()) return;
-    }
-    pcl::PointCloud<pcl::PointXYZRGB> pc;
-    double t0 = 0;
-    try {
-      if (!updateModelCopy(nerf)) return;
-      t0 = wallSeconds();
-      const nerfslam::nerf::NerfModel& m = model_copy_.model();
-      pc = views.empty() ? nerfslam::nerf::densityPointCloud(m, xo) : nerfslam::nerf::depthPointCloud(m, views, xo);
-    } catch (const std::exception& e) {
-      ++nerf_render_errors_;
-      ROS_ERROR_THROTTLE(10.0, "NeRF cloud export failed: %s", e.what());
-      return;
-    }
-    const double ms = 1e3 * (wallSeconds() - t0);
-    sensor_msgs::PointCloud2 cloud;
-    {
-      std::lock_guard<std::mutex> lock(pose_mutex_);
-      cloud.header.stamp = last_pose_ ? last_pose_->stamp : ros::Time::now();
-    }
-    cloud.header.frame_id = p_.map_frame;
-    sensor_msgs::PointCloud2Modifier mod(cloud);
-    mod.setPointCloud2FieldsByString(2, "xyz", "rgb");  // x y z float32, rgb packed (rviz RGB8)
-    mod.resize(pc.size());
-    sensor_msgs::PointCloud2Iterator<float> x(cloud, "x"), y(cloud, "y"), z(cloud, "z");
-    sensor_msgs::PointCloud2Iterator<uint8_t> cr(cloud, "r"), cg(cloud, "g"), cb(cloud, "b");
-    for (const auto& pt : pc.points) {
-      *x = pt.x;
-      *y = pt.y;
-      *z = pt.z;
-      *cr = pt.r;
-      *cg = pt.g;
-      *cb = pt.b;
-      ++x, ++y, ++z, ++cr, ++cg, ++cb;
-    }
-    nerf_cloud_pub_.publish(cloud);
-    ++nerf_clouds_;
-    nerf_cloud_points_last_ = pc.size();
-    nerf_cloud_ms_last_ = ms;
-  }
-
-  // Refreshes model_copy_ from the running NeRF (NeRF publisher thread only); false without a model.
-  bool updateModelCopy(const nerfslam::NerfMapping& nerf) {
-    double wait_ms = 0, copy_ms = 0;
-    if (!model_copy_.update(nerf, &wait_ms, &copy_ms)) return false;
-    nerf_lock_wait_ms_last_ = wait_ms;
-    nerf_copy_ms_last_ = copy_ms;
-    return true;
-  }
-
-  // ---- Services on the NeRF publisher thread ----
-  bool onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-    std::string dir_param = p_.map_dir;
-    pnh_.getParam("map_dir", dir_param);  // re-read: `rosparam set` before the call changes the folder
-    const std::filesystem::path dir = resolveMapDir(dir_param);
-    auto refuse = [&](const std::string& why) {
-      ++map_save_failures_;
-      res.success = false;
-      res.message = why;
-      ROS_ERROR("~save_map: %s", why.c_str());
-      return true;
-    };
-    if (dir_param.empty()) return refuse("~map_dir is empty");
-    const auto h = handle();
-    if (!h) return refuse("no map to save: the SLAM system has not started (no images received yet)");
-    if (h->system->map().numKeyframes() == 0)
-      return refuse("no map to save: the SLAM system has not initialised yet (no keyframes)");
-    nerfslam::NerfModelWriter write_nerf;
-    // The model is written from a copy (training pauses only for the copy, not for the disk write).
-    if (nerfslam::NerfMapping* n = h->system->nerf(); n && n->hasModel())
-      write_nerf = [this, n](const std::filesystem::path& path) {
-        if (!updateModelCopy(*n)) throw std::runtime_error("the NeRF model disappeared (reset)");
-        nerfslam::nerf::saveModel(model_copy_.model(), path);
-      };
-    try {
-      const nerfslam::MapSaveResult r = nerfslam::saveMapFolder(dir, h->system->map(), *h->camera, h->options, write_nerf);
-      ++map_saves_;
-      {
-        std::lock_guard<std::mutex> lock(diag_mutex_);
-        last_map_saved_ = dir.string();
-      }
-      res.success = true;
-      res.message = dir.string();
-      ROS_INFO("~save_map: %s (generation %lu: %zu keyframes, %zu points, %s, %.1f MB, %zu images written, %zu "
-               "reused, %.2f s)",
-               dir.c_str(), static_cast<unsigned long>(r.generation), r.keyframes, r.points,
-               r.has_nerf ? "with the NeRF model" : "no NeRF model", r.bytes / 1e6, r.images_written, r.images_reused,
-               r.seconds);
-    } catch (const std::exception& e) {
-      const std::string what = e.what();
-      return refuse(what.find(dir.string()) != std::string::npos
-                        ? "cannot save the map: " + what
-                        : "cannot save the map to " + dir.string() + ": " + what);
-    }
-    return true;
-  }
-
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) {
     std::string state;
     size_t points = 0, kfs = 0;
@@ -993,54 +658,23 @@ class NerfslamNode {
     const uint64_t lat = latency_count_;
     s.addf("frame latency ms (mean)", "%.1f", lat > 0 ? latency_ms_sum_.load() / lat : 0.0);
     s.addf("frame latency ms (max)", "%.1f", latency_ms_max_.load());
-    s.add("nerf", p_.nerf ? "on" : "off");
-    if (p_.nerf) {
-      // Only stats() here (a short lock of its own): hasModel(), trainingCamera() and viewPoses() take
-      // the model lock, held across whole training steps and renders, and would stall this (the image
-      // callbacks') thread.
-      const auto h = handle();
-      const nerfslam::NerfMapping* nerf = h ? h->system->nerf() : nullptr;
-      const nerfslam::NerfMappingStats st = nerf ? nerf->stats() : nerfslam::NerfMappingStats{};
-      s.add("nerf model", st.views > 0 ? "yes" : "no");
-      s.add("nerf steps", static_cast<int64_t>(st.steps));
-      s.addf("nerf samples/s", "%.0f", st.samples_per_second);
-      s.add("nerf views", st.views);
-      s.addf("nerf psnr recent (dB)", "%.2f", st.psnr_recent);
-      s.add("nerf keyframes dropped", static_cast<uint64_t>(st.keyframes_dropped));
-      s.add("nerf refits", static_cast<int64_t>(st.refits));
-      const uint64_t renders = nerf_renders_;
-      s.add("nerf renders", renders);
-      s.addf("nerf render ms (last)", "%.1f", nerf_render_ms_last_.load());
-      s.addf("nerf render ms (mean)", "%.1f", renders > 0 ? nerf_render_ms_sum_.load() / renders : 0.0);
-      s.addf("nerf model lock wait ms (last)", "%.1f", nerf_lock_wait_ms_last_.load());
-      s.addf("nerf model copy ms (last)", "%.1f", nerf_copy_ms_last_.load());
-      s.addf("nerf render samples per ray (last)", "%.1f", nerf_samples_per_ray_last_.load());
-      s.addf("nerf occupied fraction (last render)", "%.4f", nerf_occupied_last_.load());
-      s.add("nerf clouds", static_cast<uint64_t>(nerf_clouds_));
-      s.add("nerf cloud points (last)", static_cast<uint64_t>(nerf_cloud_points_last_));
-      s.addf("nerf cloud ms (last)", "%.1f", nerf_cloud_ms_last_.load());
-      s.add("nerf render errors", static_cast<uint64_t>(nerf_render_errors_));
+    if (sender_) {
+      s.add("keyframes sent", sender_->keyframesSent());
+      s.add("keyframe pose updates sent", sender_->poseUpdatesSent());
+      s.add("keyframes dropped (sender behind)", sender_->keyframesDropped());
+      s.add("keyframe session", static_cast<uint64_t>(sender_->session()));
     }
-    s.add("map saves", static_cast<uint64_t>(map_saves_));
-    s.add("map save failures", static_cast<uint64_t>(map_save_failures_));
-    {
-      std::lock_guard<std::mutex> lock(diag_mutex_);
-      s.add("map saved to", last_map_saved_);
-    }
+    nerf_pub_->diagnose(s);
   }
 
   ros::NodeHandle nh_, pnh_;
   Params p_;
-  // Before everything registered on it (destroyed after them).
-  ros::CallbackQueue slow_queue_;
-  ros::NodeHandle slow_nh_;
   image_transport::ImageTransport it_;
   diagnostic_updater::Updater updater_;
   image_transport::CameraSubscriber camera_sub_;
   image_transport::Subscriber image_sub_;
   ros::Publisher pose_pub_, path_pub_, points_pub_, keyframes_pub_, state_pub_;
-  ros::Publisher nerf_view_pub_, nerf_depth_pub_, nerf_cloud_pub_;
-  ros::ServiceServer reset_srv_, save_srv_, localization_srv_;
+  ros::ServiceServer reset_srv_, localization_srv_;
   tf2_ros::TransformBroadcaster tf_;
   ros::WallTimer diag_timer_, wait_timer_;
 
@@ -1070,8 +704,8 @@ class NerfslamNode {
   std::shared_ptr<const SystemHandle> handle_;
   std::mutex pose_mutex_;
   std::optional<TrackedPose> last_pose_;
-  ModelCopy model_copy_;  // NeRF publisher thread only
-  std::thread slow_thread_;
+  std::unique_ptr<nerfslam::rosnode::NerfPublisher> nerf_pub_;  // ~nerf_*, ~save_map
+  std::unique_ptr<nerfslam::rosnode::KeyframeSender> sender_;   // tracking_node: ~keyframes_out, ~keyframe_poses
 
   // Statistics.
   std::atomic<uint64_t> received_{0}, processed_{0}, tracked_{0}, refused_encoding_{0}, refused_size_{0},
@@ -1080,33 +714,20 @@ class NerfslamNode {
   std::atomic<uint64_t> callbacks_{0}, latency_count_{0};
   std::atomic<double> latency_ms_sum_{0}, latency_ms_max_{0};
   std::atomic<double> callback_ms_sum_{0}, callback_ms_max_{0};
-  std::atomic<uint64_t> nerf_renders_{0}, nerf_clouds_{0}, nerf_cloud_points_last_{0}, nerf_render_errors_{0},
-      map_saves_{0}, map_save_failures_{0};
-  std::atomic<double> nerf_render_ms_last_{0}, nerf_render_ms_sum_{0}, nerf_cloud_ms_last_{0},
-      nerf_lock_wait_ms_last_{0}, nerf_copy_ms_last_{0}, nerf_samples_per_ray_last_{0}, nerf_occupied_last_{0};
   std::mutex diag_mutex_;
   std::string state_;
-  std::string last_map_saved_;
   size_t map_points_ = 0, keyframes_ = 0;
 };
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  ros::init(argc, argv, "nerfslam_node");
-  ros::NodeHandle nh, pnh("~");
+namespace nerfslam::rosnode {
+
+int runSlamNode(int argc, char** argv, SlamNodeMode mode) {
+  ros::init(argc, argv, mode == SlamNodeMode::kTracking ? "tracking_node" : "nerfslam_node");
   Params p;
-  const std::string err = loadParams(pnh, p);
-  if (!err.empty()) {
-    ROS_FATAL("%s", err.c_str());
-    return 1;
-  }
-  try {
-    NerfslamNode node(nh, pnh, p);
-    ros::spin();
-  } catch (const std::exception& e) {
-    ROS_FATAL("%s", e.what());
-    return 1;
-  }
-  return 0;
+  p.mode = mode;
+  return spinNode<NerfslamNode>(p, loadParams);
 }
+
+}  // namespace nerfslam::rosnode

@@ -27,6 +27,7 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam_ros/conversions.h"
+#include "ros_test_util.h"
 #include "test_support.h"
 
 namespace {
@@ -263,12 +264,5 @@ TEST(ImageFolderPublisher, UndecodableFrameIsReportedAndSkipped) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "image_folder_publisher_test");
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  spinner.stop();
-  ros::shutdown();
-  return rc;
+  return nerfslam::rostest_util::runRosGtest(argc, argv, "image_folder_publisher_test");
 }

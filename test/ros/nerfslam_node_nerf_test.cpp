@@ -38,6 +38,7 @@
 #include "nerfslam/nerf/model_io.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam/system/nerf_mapping.h"
+#include "ros_test_util.h"
 #include "test_support.h"
 
 namespace {
@@ -46,7 +47,6 @@ namespace fs = std::filesystem;
 
 struct Observed {
   std::mutex mutex;
-  std::map<double, cv::Mat> images;  // published input frames (RGB) by stamp
   std::vector<sensor_msgs::ImageConstPtr> views, depths;
   sensor_msgs::PointCloud2ConstPtr cloud;
   std::map<std::string, std::string> diag;
@@ -63,28 +63,9 @@ double diagValue(Observed& o, const std::string& key) {
   return v.empty() ? 0.0 : std::stod(v);
 }
 
-template <class Pred>
-bool waitFor(double seconds, Pred pred) {
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(seconds);
-  while (ros::ok() && ros::WallTime::now() < deadline) {
-    if (pred()) return true;
-    ros::WallDuration(0.05).sleep();
-  }
-  return pred();
-}
-
-// Pearson correlation of the grey levels of two RGB images (0 when either is flat).
-double correlation(const cv::Mat& a_rgb, const cv::Mat& b_rgb) {
-  cv::Mat a, b;
-  cv::cvtColor(a_rgb, a, cv::COLOR_RGB2GRAY);
-  cv::cvtColor(b_rgb, b, cv::COLOR_RGB2GRAY);
-  a.convertTo(a, CV_64F);
-  b.convertTo(b, CV_64F);
-  a -= cv::mean(a)[0];
-  b -= cv::mean(b)[0];
-  const double den = std::sqrt(a.dot(a) * b.dot(b));
-  return den > 0 ? a.dot(b) / den : 0.0;
-}
+using nerfslam::rostest_util::correlation;
+using nerfslam::rostest_util::Joiner;
+using nerfslam::rostest_util::waitFor;
 
 double psnr(const cv::Mat& a, const cv::Mat& b) {
   const double mse = cv::norm(a, b, cv::NORM_L2SQR) / double(a.total() * a.channels());
@@ -119,21 +100,11 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
                                             " --size 320x240 --textures procedural --out '" + seq.string() + "'");
   ASSERT_EQ(synth.exit_code, 0) << synth.output;
   const nerfslam::Camera cam = nerfslam::loadCameraYaml(seq / "camera.yaml");
-  const double downscale = nerfslam::NerfMappingOptions{}.downscale;  // the node's NeRF uses the default
-  const int train_w = std::max(1, int(std::lround(cam.width / downscale)));
-  const int train_h = std::max(1, int(std::lround(cam.height / downscale)));
+  const cv::Size train = nerfslam::rostest_util::nerfTrainingSize(cam);
+  const int train_w = train.width, train_h = train.height;
 
   Observed o;
-  ros::Subscriber image_sub = nh.subscribe<sensor_msgs::Image>("image", 200, [&](const sensor_msgs::ImageConstPtr& m) {
-    cv::Mat rgb;
-    try {
-      rgb = cv_bridge::toCvCopy(m, "rgb8")->image;
-    } catch (const std::exception&) {
-      return;
-    }
-    std::lock_guard<std::mutex> lock(o.mutex);
-    o.images[m->header.stamp.toSec()] = rgb;
-  });
+  const nerfslam::rostest_util::InputImages input(nh, "image");
   ros::Subscriber diag_sub = nh.subscribe<diagnostic_msgs::DiagnosticArray>(
       "/diagnostics", 100, [&](const diagnostic_msgs::DiagnosticArrayConstPtr& m) {
         std::lock_guard<std::mutex> lock(o.mutex);
@@ -160,12 +131,7 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
         "' _color:=true _rate:=" + std::to_string(rate) + " _wait_for_subscribers:=true _exit_when_done:=true");
     publisher_done = true;
   });
-  struct Joiner {
-    std::thread& t;
-    ~Joiner() {
-      if (t.joinable()) t.join();
-    }
-  } joiner{publisher_thread};
+  const Joiner joiner{publisher_thread};
 
   // 4. A trained model, and still nothing rendered: nobody subscribes to the NeRF topics.
   ASSERT_TRUE(waitFor(60.0, [&] { return diagString(o, "nerf model") == "yes" && diagValue(o, "nerf steps") > 0; }))
@@ -208,13 +174,12 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
   size_t checked = 0, matched = 0;
   auto checkViews = [&] {
     std::vector<sensor_msgs::ImageConstPtr> views;
-    std::map<double, cv::Mat> images;
     {
       std::lock_guard<std::mutex> lock(o.mutex);
       views.assign(o.views.begin() + long(checked), o.views.end());
       checked = o.views.size();
-      images = o.images;
     }
+    const std::map<double, cv::Mat> images = input.snapshot();  // after the views: their frames came first
     for (const auto& v : views) {
       EXPECT_EQ(v->encoding, "rgb8");
       EXPECT_EQ(int(v->width), train_w);
@@ -416,13 +381,4 @@ TEST(NerfslamNodeNerf, InvalidNerfParametersExitNonZeroNamingTheParameter) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "nerfslam_node_nerf_test");
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  spinner.stop();
-  ros::shutdown();
-  return rc;
-}
+int main(int argc, char** argv) { return nerfslam::rostest_util::runRosGtest(argc, argv, "nerfslam_node_nerf_test"); }

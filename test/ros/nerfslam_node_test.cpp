@@ -28,6 +28,7 @@
 #include "nerfslam/eval/trajectory_metrics.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam_ros/conversions.h"
+#include "ros_test_util.h"
 #include "test_support.h"
 
 namespace {
@@ -47,16 +48,7 @@ uint64_t diagValue(Observed& o, const std::string& key) {
   return it == o.diag.end() ? 0 : std::stoull(it->second);
 }
 
-// Waits until pred() holds or `seconds` pass; returns pred().
-template <class Pred>
-bool waitFor(double seconds, Pred pred) {
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(seconds);
-  while (ros::ok() && ros::WallTime::now() < deadline) {
-    if (pred()) return true;
-    ros::WallDuration(0.05).sleep();
-  }
-  return pred();
-}
+using nerfslam::rostest_util::waitFor;
 
 TEST(NerfslamNode, TracksKittiWithinTheAteThresholdAndSurvivesBadInput) {
   ros::NodeHandle nh, pnh("~");
@@ -259,13 +251,4 @@ TEST(NerfslamNode, InvalidParametersExitNonZeroNamingTheParameter) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "nerfslam_node_test");
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  spinner.stop();
-  ros::shutdown();
-  return rc;
-}
+int main(int argc, char** argv) { return nerfslam::rostest_util::runRosGtest(argc, argv, "nerfslam_node_test"); }

@@ -1,0 +1,142 @@
+#pragma once
+// The "NeRF publisher" of the ROS nodes that run a NerfMapping (nerfslam_node, nerf_mapping_node):
+// a thread of its own (niceness ~nerf_render_nice) that renders ~nerf_view / ~nerf_depth /
+// ~nerf_cloud and serves ~save_map, never on the image callbacks or a tracking worker. Renders and
+// saves read a copy of the model taken under NerfMapping::withModel, which pauses NeRF training (not
+// tracking) only for the copy. Also the shared parameters of those topics (docs/ros.md).
+#include <atomic>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <ros/callback_queue.h>
+#include <ros/ros.h>
+#include <std_srvs/Trigger.h>
+
+#include "nerfslam/core/camera.h"
+#include "nerfslam/core/pose.h"
+#include "nerfslam/mapping/map.h"
+#include "nerfslam/system/nerf_mapping.h"
+#include "nerfslam/system/slam_system.h"
+
+namespace nerfslam::rosnode {
+
+// Parameters shared by the nodes that run or publish a NeRF (read by loadNerfParams).
+struct NerfParams {
+  std::string map_frame = "map";
+  std::string camera_frame = "camera_optical_frame";
+  bool nerf = true;
+  int nerf_threads = 1;
+  int nerf_nice = 19;
+  double nerf_publish_period = 2.0;
+  double nerf_cloud_period = 10.0;
+  std::string nerf_cloud_source = "depth";
+  int nerf_cloud_views = 4;
+  int nerf_cloud_stride = 2;
+  int nerf_render_threads = 1;
+  int nerf_render_nice = 10;
+  std::string map_dir = "nerfslam_map";
+};
+
+// Reads, prints and validates ~map_frame, ~camera_frame, the ~nerf* parameters (~nerf itself only
+// when read_nerf_switch) and ~map_dir; returns an error message or "".
+std::string loadNerfParams(ros::NodeHandle& pnh, NerfParams& p, bool read_nerf_switch);
+
+// A relative ~map_dir is taken relative to the working directory (ROS_HOME under roslaunch).
+std::filesystem::path resolveMapDir(const std::string& dir);
+double wallSeconds();
+// Lowers the calling thread's priority (Linux: per-thread niceness; threads it starts inherit it).
+void lowerThreadPriority(int increment, const char* what);
+
+// The nodes' main(): reads the parameters with `load` (an error is a ROS_FATAL and exit code 1), then
+// runs a `Node(nh, pnh, params)` under ros::spin(); exceptions are fatal too. Call after ros::init.
+template <class Node, class Params, class Load>
+int spinNode(Params& params, Load load) {
+  ros::NodeHandle nh, pnh("~");
+  try {
+    if (const std::string err = load(pnh, params); !err.empty()) {
+      ROS_FATAL("%s", err.c_str());
+      return 1;
+    }
+    Node node(nh, pnh, params);
+    ros::spin();
+  } catch (const std::exception& e) {
+    ROS_FATAL("%s", e.what());
+    return 1;
+  }
+  return 0;
+}
+
+// What the publisher renders and saves: the running map and NeRF, kept alive by `owner` while used.
+struct MapSource {
+  std::shared_ptr<const void> owner;
+  const Map* map = nullptr;
+  NerfMapping* nerf = nullptr;  // null: no NeRF (~save_map saves the sparse map alone)
+  std::shared_ptr<const Camera> camera;
+  SystemOptions options;
+  uint64_t generation = 0;
+  // What ~save_map saves when not `map` (e.g. a copy without what the map folder format refuses).
+  std::function<std::shared_ptr<const Map>()> map_to_save;
+};
+
+// The pose ~nerf_view is rendered from, and the stamp of its image.
+struct ViewPose {
+  SE3 T_world_cam;
+  ros::Time stamp;
+  uint64_t generation = 0;
+};
+
+class NerfPublisher {
+ public:
+  using SourceFn = std::function<std::shared_ptr<const MapSource>()>;
+  using PoseFn = std::function<std::optional<ViewPose>()>;
+  // Advertises the NeRF topics (when p.nerf) and ~save_map on `pnh`. `source` and `pose` are called
+  // from the publisher thread; a view is rendered only from a pose of the source's generation.
+  NerfPublisher(ros::NodeHandle pnh, NerfParams p, SourceFn source, PoseFn pose);
+  ~NerfPublisher();
+  NerfPublisher(const NerfPublisher&) = delete;
+  NerfPublisher& operator=(const NerfPublisher&) = delete;
+
+  void start();
+  void stop();  // joins the thread; idempotent
+
+  // NeRF fields (when p.nerf) and the map saves, for the node's diagnostics.
+  void diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const;
+  // "N NeRF renders (mean X ms), N NeRF clouds, N map saves (N failed)", for the shutdown summary.
+  std::string summary() const;
+  uint64_t renders() const { return renders_; }
+
+ private:
+  class ModelCopy;
+  void run();
+  void publishView();
+  void publishCloud();
+  bool updateModelCopy(const NerfMapping& nerf);
+  bool onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res);
+
+  ros::NodeHandle pnh_;
+  NerfParams p_;
+  SourceFn source_;
+  PoseFn pose_;
+  ros::CallbackQueue queue_;  // before everything registered on it
+  ros::NodeHandle queue_nh_;
+  ros::Publisher view_pub_, depth_pub_, cloud_pub_;
+  ros::ServiceServer save_srv_;
+  std::unique_ptr<ModelCopy> model_copy_;  // publisher thread only
+  std::thread thread_;
+  std::atomic<bool> stopping_{false};
+
+  std::atomic<uint64_t> renders_{0}, clouds_{0}, cloud_points_last_{0}, render_errors_{0}, saves_{0}, save_failures_{0};
+  std::atomic<double> render_ms_last_{0}, render_ms_sum_{0}, cloud_ms_last_{0}, lock_wait_ms_last_{0}, copy_ms_last_{0},
+      samples_per_ray_last_{0}, occupied_last_{0};
+  mutable std::mutex saved_mutex_;
+  std::string last_saved_;
+};
+
+}  // namespace nerfslam::rosnode

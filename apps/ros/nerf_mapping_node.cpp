@@ -1,0 +1,190 @@
+// nerf_mapping_node: the NeRF half of the off-board mapping split (docs/ros.md, "Off-board mapping").
+// tracking_node (on the robot) runs tracking and the sparse mapping and sends its keyframes and their
+// bundle-adjusted poses over ROS topics; this node, on the same or another computer, keeps a replica
+// of the sparse map from them (keyframe_link.h, MapReplica) and trains an unchanged NerfMapping on
+// it, fed through a KeyframeBus of its own exactly as SlamSystem feeds it in nerfslam_node.
+//
+// Subscribed (remap them to the tracking node's topics, e.g. keyframes:=/tracking_node/keyframes_out):
+//   keyframes          nerfslam/MapKeyframe: a new keyframe (image, camera_info, pose, id, map points)
+//   keyframe_poses     nerfslam/KeyframePoses: the keyframes' poses after bundle adjustment, culled and
+//                      removed keyframes, the map points
+//   pose               geometry_msgs/PoseStamped (optional): the tracked camera pose ~nerf_view is
+//                      rendered from; without it, the newest keyframe's
+// Published (private namespace), as nerfslam_node publishes them (nerf_publisher.h):
+//   ~nerf_view, ~nerf_depth, ~nerf_cloud, /diagnostics (replica and NeRF)
+// Services:
+//   ~save_map          std_srvs/Trigger: the replica's keyframes (images and poses; no features, no
+//                      points) and the NeRF model, as a map folder in ~map_dir
+// Parameters: ~map_frame, ~camera_frame, ~nerf_threads, ~nerf_nice, ~nerf_publish_period,
+//   ~nerf_cloud_period, ~nerf_cloud_source, ~nerf_cloud_views, ~nerf_cloud_stride,
+//   ~nerf_render_threads, ~nerf_render_nice, ~map_dir as in nerfslam_node, and
+//   ~keyframe_queue     int  32 (1..100000)  keyframes waiting for the NeRF thread before the oldest
+//                                            are dropped (nerf.keyframe_queue)
+#include <cstdio>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <ros/ros.h>
+
+#include "nerfslam/mapping/mapping_thread.h"
+#include "nerfslam/system/nerf_mapping.h"
+#include "nerfslam_ros/conversions.h"
+#include "nerfslam_ros/keyframe_link.h"
+#include "nerfslam_ros/nerf_publisher.h"
+
+namespace {
+
+using nerfslam::rosnode::MapSource;
+using nerfslam::rosnode::ViewPose;
+
+struct Params {
+  nerfslam::rosnode::NerfParams nerf;
+  int keyframe_queue = nerfslam::NerfMappingOptions{}.keyframe_queue;
+};
+
+std::string loadParams(ros::NodeHandle& pnh, Params& p) {
+  ROS_INFO("nerf_mapping_node parameters:");
+  pnh.param("keyframe_queue", p.keyframe_queue, p.keyframe_queue);
+  ROS_INFO("  ~keyframe_queue = %d", p.keyframe_queue);
+  if (std::string err = nerfslam::rosnode::loadNerfParams(pnh, p.nerf, false); !err.empty()) return err;
+  if (p.keyframe_queue < 1 || p.keyframe_queue > 100000)
+    return "~keyframe_queue must be in 1..100000 (got " + std::to_string(p.keyframe_queue) + ")";
+  return "";
+}
+
+class NerfMappingNode {
+ public:
+  NerfMappingNode(ros::NodeHandle nh, ros::NodeHandle pnh, Params p)
+      : nh_(nh), pnh_(pnh), p_(std::move(p)), updater_(nh, pnh) {
+    options_.nerf.enabled = true;
+    options_.nerf.threads = p_.nerf.nerf_threads;
+    options_.nerf.nice_increment = p_.nerf.nerf_nice;
+    options_.nerf.keyframe_queue = p_.keyframe_queue;
+    nerf_ = std::make_unique<nerfslam::NerfMapping>(replica_.map(), bus_, options_.nerf);
+    nerf_->start();
+    nerf_pub_ = std::make_unique<nerfslam::rosnode::NerfPublisher>(
+        pnh_, p_.nerf, [this] { return source(); }, [this] { return viewPose(); });
+    updater_.setHardwareID("nerfslam");
+    updater_.add("nerf_mapping_node", this, &NerfMappingNode::diagnose);
+    diag_timer_ =
+        nh_.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) { updater_.force_update(); });
+    keyframes_sub_ = nh_.subscribe("keyframes", 100, &NerfMappingNode::onKeyframe, this);
+    poses_sub_ = nh_.subscribe("keyframe_poses", 10, &NerfMappingNode::onPoses, this);
+    pose_sub_ = nh_.subscribe("pose", 1, &NerfMappingNode::onPose, this);
+    wait_timer_ = nh_.createWallTimer(ros::WallDuration(2.0), [this](const ros::WallTimerEvent&) {
+      if (replica_.keyframesReceived() == 0)
+        ROS_WARN_THROTTLE(10.0, "waiting for keyframes on %s (remap `keyframes` to the tracking node's ~keyframes_out)",
+                          keyframes_sub_.getTopic().c_str());
+    });
+    nerf_pub_->start();
+    ROS_INFO("nerf_mapping_node: keyframes from %s, poses from %s, view pose from %s",
+             keyframes_sub_.getTopic().c_str(), poses_sub_.getTopic().c_str(), pose_sub_.getTopic().c_str());
+  }
+
+  ~NerfMappingNode() {
+    nerf_pub_->stop();
+    nerf_->stop();
+    const nerfslam::NerfMappingStats st = nerf_->stats();
+    std::printf(
+        "nerf_mapping_node: %lu keyframes received (%lu refused), %lu pose updates applied, %lu stale "
+        "messages, %lu sessions; replica %zu keyframes, %zu points; NeRF %ld steps, %d views; %s\n",
+        static_cast<unsigned long>(replica_.keyframesReceived()), static_cast<unsigned long>(refused_),
+        static_cast<unsigned long>(replica_.poseUpdatesApplied()), static_cast<unsigned long>(replica_.staleMessages()),
+        static_cast<unsigned long>(replica_.sessions()), replica_.map().numKeyframes(), replica_.map().numPoints(),
+        static_cast<long>(st.steps), st.views, nerf_pub_->summary().c_str());
+    std::fflush(stdout);
+  }
+
+ private:
+  void onKeyframe(const nerfslam::MapKeyframeConstPtr& m) {
+    std::optional<nerfslam::KeyframeEvent> ev;
+    try {
+      ev = replica_.apply(*m);
+    } catch (const std::exception& e) {
+      ++refused_;
+      ROS_ERROR_THROTTLE(5.0, "refusing keyframe %lu: %s", static_cast<unsigned long>(m->id), e.what());
+      return;
+    }
+    if (!ev) return;
+    {
+      std::lock_guard<std::mutex> lock(pose_mutex_);
+      newest_keyframe_ = ViewPose{ev->T_world_cam, m->header.stamp, m->session};
+    }
+    bus_.publish(*ev);
+  }
+
+  void onPoses(const nerfslam::KeyframePosesConstPtr& m) { replica_.apply(*m); }
+
+  void onPose(const geometry_msgs::PoseStampedConstPtr& m) {
+    std::lock_guard<std::mutex> lock(pose_mutex_);
+    last_pose_ = ViewPose{nerfslam::rosbridge::fromPose(m->pose), m->header.stamp, 0};
+  }
+
+  std::shared_ptr<const MapSource> source() const {
+    auto cam = replica_.camera();
+    if (!cam) return nullptr;
+    auto s = std::make_shared<MapSource>();
+    s->map = &replica_.map();
+    s->nerf = nerf_.get();
+    s->camera = std::move(cam);
+    s->options = options_;
+    s->generation = replica_.session();
+    s->map_to_save = [this] { return replica_.keyframesOnly(); };
+    return s;
+  }
+
+  // The tracked pose when the tracking node's ~pose arrives, else the newest keyframe's.
+  std::optional<ViewPose> viewPose() const {
+    std::lock_guard<std::mutex> lock(pose_mutex_);
+    std::optional<ViewPose> v = last_pose_ ? last_pose_ : newest_keyframe_;
+    if (v) v->generation = replica_.session();
+    return v;
+  }
+
+  void diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) {
+    const bool connected = keyframes_sub_.getNumPublishers() > 0 && poses_sub_.getNumPublishers() > 0;
+    if (!connected)
+      s.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no tracking node publishing keyframes and poses");
+    else if (refused_ > 0)
+      s.summary(diagnostic_msgs::DiagnosticStatus::WARN, "keyframes refused");
+    else
+      s.summary(diagnostic_msgs::DiagnosticStatus::OK, "mapping");
+    s.add("tracking node connected", connected ? "yes" : "no");
+    s.add("keyframes received", replica_.keyframesReceived());
+    s.add("keyframes refused", static_cast<uint64_t>(refused_));
+    s.add("pose updates applied", replica_.poseUpdatesApplied());
+    s.add("last pose update seq", replica_.posesSeq());
+    s.add("stale messages", replica_.staleMessages());
+    s.add("sessions", replica_.sessions());
+    s.add("session", static_cast<uint64_t>(replica_.session()));
+    s.add("keyframes", replica_.map().numKeyframes());
+    s.add("map points", replica_.map().numPoints());
+    nerf_pub_->diagnose(s);
+  }
+
+  ros::NodeHandle nh_, pnh_;
+  Params p_;
+  diagnostic_updater::Updater updater_;
+  nerfslam::SystemOptions options_;
+  nerfslam::rosnode::MapReplica replica_;
+  nerfslam::KeyframeBus bus_;  // before nerf_, which unsubscribes from it
+  std::unique_ptr<nerfslam::NerfMapping> nerf_;
+  std::unique_ptr<nerfslam::rosnode::NerfPublisher> nerf_pub_;
+  ros::Subscriber keyframes_sub_, poses_sub_, pose_sub_;
+  ros::WallTimer diag_timer_, wait_timer_;
+  mutable std::mutex pose_mutex_;
+  std::optional<ViewPose> last_pose_, newest_keyframe_;
+  std::atomic<uint64_t> refused_{0};
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "nerf_mapping_node");
+  Params p;
+  return nerfslam::rosnode::spinNode<NerfMappingNode>(p, loadParams);
+}

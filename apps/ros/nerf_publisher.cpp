@@ -1,0 +1,441 @@
+#include "nerfslam_ros/nerf_publisher.h"
+
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <type_traits>
+#include <vector>
+
+#include <cv_bridge/cv_bridge.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/PointCloud2.h>
+#include <sensor_msgs/point_cloud2_iterator.h>
+
+#include "nerfslam/nerf/export.h"
+#include "nerfslam/nerf/field.h"
+#include "nerfslam/nerf/model_io.h"
+#include "nerfslam/nerf/nerf_options.h"
+#include "nerfslam/nerf/renderer.h"
+#include "nerfslam/system/map_store.h"
+#include "nerfslam_ros/conversions.h"
+
+namespace nerfslam::rosnode {
+
+std::filesystem::path resolveMapDir(const std::string& dir) {
+  std::error_code ec;
+  const std::filesystem::path abs = std::filesystem::absolute(dir, ec);
+  return ec ? std::filesystem::path(dir) : abs.lexically_normal();
+}
+
+double wallSeconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+void lowerThreadPriority(int increment, const char* what) {
+  if (increment <= 0) return;
+  const pid_t tid = static_cast<pid_t>(syscall(SYS_gettid));
+  if (setpriority(PRIO_PROCESS, static_cast<id_t>(tid),
+                  getpriority(PRIO_PROCESS, static_cast<id_t>(tid)) + increment) != 0)
+    ROS_WARN("could not lower the %s thread's priority", what);
+}
+
+std::string loadNerfParams(ros::NodeHandle& pnh, NerfParams& p, bool read_nerf_switch) {
+  pnh.param("map_frame", p.map_frame, p.map_frame);
+  pnh.param("camera_frame", p.camera_frame, p.camera_frame);
+  if (read_nerf_switch) pnh.param("nerf", p.nerf, p.nerf);
+  pnh.param("nerf_threads", p.nerf_threads, p.nerf_threads);
+  pnh.param("nerf_nice", p.nerf_nice, p.nerf_nice);
+  pnh.param("nerf_publish_period", p.nerf_publish_period, p.nerf_publish_period);
+  pnh.param("nerf_cloud_period", p.nerf_cloud_period, p.nerf_cloud_period);
+  pnh.param("nerf_cloud_source", p.nerf_cloud_source, p.nerf_cloud_source);
+  pnh.param("nerf_cloud_views", p.nerf_cloud_views, p.nerf_cloud_views);
+  pnh.param("nerf_cloud_stride", p.nerf_cloud_stride, p.nerf_cloud_stride);
+  pnh.param("nerf_render_threads", p.nerf_render_threads, p.nerf_render_threads);
+  pnh.param("nerf_render_nice", p.nerf_render_nice, p.nerf_render_nice);
+  pnh.param("map_dir", p.map_dir, p.map_dir);
+  ROS_INFO("  ~map_frame = %s", p.map_frame.c_str());
+  ROS_INFO("  ~camera_frame = %s", p.camera_frame.c_str());
+  ROS_INFO("  ~nerf = %s", p.nerf ? "true" : "false");
+  ROS_INFO("  ~nerf_threads = %d", p.nerf_threads);
+  ROS_INFO("  ~nerf_nice = %d", p.nerf_nice);
+  ROS_INFO("  ~nerf_publish_period = %g s", p.nerf_publish_period);
+  ROS_INFO("  ~nerf_cloud_period = %g s", p.nerf_cloud_period);
+  ROS_INFO("  ~nerf_cloud_source = %s", p.nerf_cloud_source.c_str());
+  ROS_INFO("  ~nerf_cloud_views = %d", p.nerf_cloud_views);
+  ROS_INFO("  ~nerf_cloud_stride = %d", p.nerf_cloud_stride);
+  ROS_INFO("  ~nerf_render_threads = %d", p.nerf_render_threads);
+  ROS_INFO("  ~nerf_render_nice = %d", p.nerf_render_nice);
+  ROS_INFO("  ~map_dir = %s (%s)", p.map_dir.c_str(), resolveMapDir(p.map_dir).c_str());
+  if (p.map_frame.empty()) return "~map_frame must not be empty";
+  if (p.camera_frame.empty()) return "~camera_frame must not be empty";
+  if (p.map_frame == p.camera_frame) return "~map_frame and ~camera_frame must differ";
+  if (p.nerf_threads < 1 || p.nerf_threads > 64)
+    return "~nerf_threads must be in 1..64 (got " + std::to_string(p.nerf_threads) + ")";
+  if (p.nerf_nice < 0 || p.nerf_nice > 19)
+    return "~nerf_nice must be in 0..19 (got " + std::to_string(p.nerf_nice) + ")";
+  if (!(p.nerf_publish_period > 0) || !std::isfinite(p.nerf_publish_period))
+    return "~nerf_publish_period must be > 0 (got " + std::to_string(p.nerf_publish_period) + ")";
+  if (!(p.nerf_cloud_period > 0) || !std::isfinite(p.nerf_cloud_period))
+    return "~nerf_cloud_period must be > 0 (got " + std::to_string(p.nerf_cloud_period) + ")";
+  if (p.nerf_cloud_source != "depth" && p.nerf_cloud_source != "density")
+    return "~nerf_cloud_source must be depth or density (got '" + p.nerf_cloud_source + "')";
+  if (p.nerf_cloud_views < 1 || p.nerf_cloud_views > 64)
+    return "~nerf_cloud_views must be in 1..64 (got " + std::to_string(p.nerf_cloud_views) + ")";
+  if (p.nerf_cloud_stride < 1 || p.nerf_cloud_stride > 16)
+    return "~nerf_cloud_stride must be in 1..16 (got " + std::to_string(p.nerf_cloud_stride) + ")";
+  if (p.nerf_render_threads < 1 || p.nerf_render_threads > 64)
+    return "~nerf_render_threads must be in 1..64 (got " + std::to_string(p.nerf_render_threads) + ")";
+  if (p.nerf_render_nice < 0 || p.nerf_render_nice > 19)
+    return "~nerf_render_nice must be in 0..19 (got " + std::to_string(p.nerf_render_nice) + ")";
+  if (p.map_dir.empty()) return "~map_dir must not be empty";
+  if (p.nerf && p.nerf_render_nice > p.nerf_nice)
+    ROS_WARN("~nerf_render_nice (%d) > ~nerf_nice (%d): NeRF training will starve the NeRF topics' renders",
+             p.nerf_render_nice, p.nerf_nice);
+  return "";
+}
+
+// A copy of the NeRF model that the publisher thread renders, exports and saves from, so that NeRF
+// training pauses only while the copy is taken (a memcpy of the parameters and the occupancy grid,
+// under NerfMapping::withModel), not for a whole render. Costs one model's memory (the size of a
+// saved model: ~70 MB with the default 2^19-entry hash tables); the buffers are reused.
+class NerfPublisher::ModelCopy {
+ public:
+  // Copies the model; false when there is none yet. Returns the wait for the lock and the copy time.
+  bool update(const NerfMapping& nerf, double* wait_ms, double* copy_ms) {
+    const double t0 = wallSeconds();
+    double t1 = t0;
+    const bool ok = nerf.withModel([&](nerf::NerfModel& src) {
+      t1 = wallSeconds();
+      copyFrom(src);
+    });
+    if (!ok) return false;
+    model_.field->parametersChanged();  // derived copies of the weights, outside the lock
+    if (wait_ms) *wait_ms = 1e3 * (t1 - t0);
+    if (copy_ms) *copy_ms = 1e3 * (wallSeconds() - t1);
+    return true;
+  }
+  nerf::NerfModel& model() { return model_; }
+
+ private:
+  // The field's structure, from its configuration's scalar options.
+  struct KeyVisitor {
+    std::string key;
+    template <class T, class... Rest>
+    void operator()(const char* name, T& value, Rest&&...) {
+      if constexpr (std::is_arithmetic_v<T>) key += std::string(name) + "=" + std::to_string(value) + ";";
+    }
+  };
+  static std::string configKey(nerf::FieldConfig config) {
+    KeyVisitor v;
+    config.visit(v);
+    return v.key;
+  }
+  void copyFrom(nerf::NerfModel& src) {
+    const std::string key = configKey(src.field->config());
+    auto src_params = src.field->parameters();
+    bool same = model_.field && key == key_;
+    std::vector<nerf::FloatArray> dst_params;
+    if (same) {
+      dst_params = model_.field->parameters();
+      same = dst_params.size() == src_params.size();
+      for (size_t i = 0; same && i < src_params.size(); ++i)
+        same = dst_params[i].name == src_params[i].name && dst_params[i].size == src_params[i].size;
+    }
+    if (!same) {  // first copy, or another field structure (rare: allocated under the lock)
+      model_.field = std::make_unique<nerf::RadianceField>(src.field->config(), 0);
+      key_ = key;
+      dst_params = model_.field->parameters();
+    }
+    for (size_t i = 0; i < src_params.size(); ++i)
+      std::memcpy(dst_params[i].data, src_params[i].data, src_params[i].size * sizeof(float));
+    model_.field_config = src.field_config;
+    model_.scene = src.scene;
+    model_.training_steps = src.training_steps;
+    if (model_.grid)
+      *model_.grid = *src.grid;
+    else
+      model_.grid = std::make_unique<nerf::OccupancyGrid>(*src.grid);
+  }
+
+  nerf::NerfModel model_;
+  std::string key_;
+};
+
+NerfPublisher::NerfPublisher(ros::NodeHandle pnh, NerfParams p, SourceFn source, PoseFn pose)
+    : pnh_(pnh),
+      p_(std::move(p)),
+      source_(std::move(source)),
+      pose_(std::move(pose)),
+      model_copy_(std::make_unique<ModelCopy>()) {
+  // The publisher thread's queue: the NeRF topics' renders and the map services (slow work that
+  // must not delay image callbacks or tracking).
+  queue_nh_ = pnh_;
+  queue_nh_.setCallbackQueue(&queue_);
+  save_srv_ = queue_nh_.advertiseService("save_map", &NerfPublisher::onSaveMap, this);
+  if (p_.nerf) {
+    view_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_view", 1);
+    depth_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_depth", 1);
+    cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("nerf_cloud", 1, true);
+  }
+}
+
+NerfPublisher::~NerfPublisher() { stop(); }
+
+void NerfPublisher::start() {
+  if (!thread_.joinable()) thread_ = std::thread([this] { run(); });
+}
+
+void NerfPublisher::stop() {
+  stopping_ = true;
+  if (thread_.joinable()) thread_.join();
+}
+
+void NerfPublisher::run() {
+  lowerThreadPriority(p_.nerf_render_nice, "NeRF publisher");
+  double next_view = wallSeconds() + p_.nerf_publish_period;
+  double next_cloud = wallSeconds() + p_.nerf_cloud_period;
+  while (!stopping_ && ros::ok()) {
+    queue_.callAvailable(ros::WallDuration(0.05));
+    if (!p_.nerf || stopping_) continue;
+    // A render longer than its period is followed by half a period of rest, so the thread never
+    // renders back to back.
+    double now = wallSeconds();
+    if (now >= next_view) {
+      publishView();
+      const double end = wallSeconds();
+      next_view = std::max(now + p_.nerf_publish_period, end + 0.5 * p_.nerf_publish_period);
+    }
+    now = wallSeconds();
+    if (now >= next_cloud) {
+      publishCloud();
+      const double end = wallSeconds();
+      next_cloud = std::max(now + p_.nerf_cloud_period, end + 0.5 * p_.nerf_cloud_period);
+    }
+  }
+}
+
+namespace {
+// A new model is rendered only after its occupancy grid's second update (TrainOptions::
+// grid_update_interval steps, the interval NerfMapping trains with): before it nearly every cell is
+// still marked occupied and a render costs ~5x more samples (measured at 160x120: 4.2 M samples,
+// 218 per ray, at step 3; 0.6 M, 30 per ray, at step 17).
+bool modelReady(const NerfMapping& nerf) {
+  return nerf.stats().steps > nerf::TrainOptions{}.grid_update_interval && nerf.hasModel();
+}
+}  // namespace
+
+void NerfPublisher::publishView() {
+  if (view_pub_.getNumSubscribers() == 0 && depth_pub_.getNumSubscribers() == 0) return;
+  const auto src = source_();
+  if (!src || !src->nerf) return;
+  NerfMapping& nerf = *src->nerf;
+  if (!modelReady(nerf)) return;
+  const std::optional<ViewPose> pose = pose_();
+  if (!pose || pose->generation != src->generation) return;
+  const Camera cam = nerf.trainingCamera();
+  nerf::RenderOptions ro;
+  ro.threads = p_.nerf_render_threads;
+  ro.normals = false;
+  ro.background = {0.0, 0.0, 0.0};
+  nerf::RenderResult r;
+  double t0 = 0;
+  try {
+    if (!updateModelCopy(nerf)) return;
+    t0 = wallSeconds();
+    r = nerf::renderView(model_copy_->model(), cam, pose->T_world_cam, ro);
+  } catch (const std::exception& e) {
+    ++render_errors_;
+    ROS_ERROR_THROTTLE(10.0, "NeRF render failed: %s", e.what());
+    return;
+  }
+  const double ms = 1e3 * (wallSeconds() - t0);
+  samples_per_ray_last_ = double(r.samples) / std::max(1, cam.width * cam.height);
+  occupied_last_ = model_copy_->model().grid->occupiedFraction();
+  std_msgs::Header header;
+  header.stamp = pose->stamp;
+  header.frame_id = p_.camera_frame;
+  if (view_pub_.getNumSubscribers() > 0) {
+    cv::Mat rgb8;
+    r.rgb.convertTo(rgb8, CV_8UC3, 255.0);  // saturating: [0,1] -> 0..255, RGB order
+    view_pub_.publish(cv_bridge::CvImage(header, "rgb8", rgb8).toImageMsg());
+  }
+  if (depth_pub_.getNumSubscribers() > 0) {
+    cv::Mat depth = r.depth.clone();
+    depth.setTo(std::numeric_limits<float>::quiet_NaN(), depth <= 0.0f);  // REP 118: NaN = no depth
+    depth_pub_.publish(rosbridge::toImageMsg(depth, header));
+  }
+  ++renders_;
+  render_ms_last_ = ms;
+  render_ms_sum_.store(render_ms_sum_.load() + ms);
+}
+
+void NerfPublisher::publishCloud() {
+  if (cloud_pub_.getNumSubscribers() == 0) return;
+  const auto src = source_();
+  if (!src || !src->nerf) return;
+  NerfMapping& nerf = *src->nerf;
+  if (!modelReady(nerf)) return;
+  nerf::ExportOptions xo;
+  xo.threads = p_.nerf_render_threads;
+  std::vector<nerf::PosedCamera> views;
+  if (p_.nerf_cloud_source == "depth") {
+    // Rendered at 1/stride of the training resolution with a point per pixel: the points
+    // depthPointCloud would keep with pixel_stride, for 1/stride^2 of the rays.
+    const Camera train = nerf.trainingCamera();
+    const int w = std::max(1, static_cast<int>(std::lround(double(train.width) / p_.nerf_cloud_stride)));
+    const int hgt = std::max(1, static_cast<int>(std::lround(double(train.height) / p_.nerf_cloud_stride)));
+    Camera cam = train.scaled(double(w) / train.width);
+    cam.width = w;
+    cam.height = hgt;
+    xo.pixel_stride = 1;
+    const std::vector<SE3> poses = nerf.viewPoses();
+    const size_t n = std::min(poses.size(), static_cast<size_t>(p_.nerf_cloud_views));
+    for (size_t i = poses.size() - n; i < poses.size(); ++i) views.push_back({cam, poses[i]});
+    if (views.empty()) return;
+  }
+  pcl::PointCloud<pcl::PointXYZRGB> pc;
+  double t0 = 0;
+  try {
+    if (!updateModelCopy(nerf)) return;
+    t0 = wallSeconds();
+    const nerf::NerfModel& m = model_copy_->model();
+    pc = views.empty() ? nerf::densityPointCloud(m, xo) : nerf::depthPointCloud(m, views, xo);
+  } catch (const std::exception& e) {
+    ++render_errors_;
+    ROS_ERROR_THROTTLE(10.0, "NeRF cloud export failed: %s", e.what());
+    return;
+  }
+  const double ms = 1e3 * (wallSeconds() - t0);
+  sensor_msgs::PointCloud2 cloud;
+  const std::optional<ViewPose> pose = pose_();
+  cloud.header.stamp = pose ? pose->stamp : ros::Time::now();
+  cloud.header.frame_id = p_.map_frame;
+  sensor_msgs::PointCloud2Modifier mod(cloud);
+  mod.setPointCloud2FieldsByString(2, "xyz", "rgb");  // x y z float32, rgb packed (rviz RGB8)
+  mod.resize(pc.size());
+  sensor_msgs::PointCloud2Iterator<float> x(cloud, "x"), y(cloud, "y"), z(cloud, "z");
+  sensor_msgs::PointCloud2Iterator<uint8_t> cr(cloud, "r"), cg(cloud, "g"), cb(cloud, "b");
+  for (const auto& pt : pc.points) {
+    *x = pt.x;
+    *y = pt.y;
+    *z = pt.z;
+    *cr = pt.r;
+    *cg = pt.g;
+    *cb = pt.b;
+    ++x, ++y, ++z, ++cr, ++cg, ++cb;
+  }
+  cloud_pub_.publish(cloud);
+  ++clouds_;
+  cloud_points_last_ = pc.size();
+  cloud_ms_last_ = ms;
+}
+
+bool NerfPublisher::updateModelCopy(const NerfMapping& nerf) {
+  double wait_ms = 0, copy_ms = 0;
+  if (!model_copy_->update(nerf, &wait_ms, &copy_ms)) return false;
+  lock_wait_ms_last_ = wait_ms;
+  copy_ms_last_ = copy_ms;
+  return true;
+}
+
+bool NerfPublisher::onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  std::string dir_param = p_.map_dir;
+  pnh_.getParam("map_dir", dir_param);  // re-read: `rosparam set` before the call changes the folder
+  const std::filesystem::path dir = resolveMapDir(dir_param);
+  auto refuse = [&](const std::string& why) {
+    ++save_failures_;
+    res.success = false;
+    res.message = why;
+    ROS_ERROR("~save_map: %s", why.c_str());
+    return true;
+  };
+  if (dir_param.empty()) return refuse("~map_dir is empty");
+  const auto src = source_();
+  if (!src) return refuse("no map to save: the SLAM system has not started (no images received yet)");
+  if (src->map->numKeyframes() == 0)
+    return refuse("no map to save: the SLAM system has not initialised yet (no keyframes)");
+  NerfModelWriter write_nerf;
+  // The model is written from a copy (training pauses only for the copy, not for the disk write).
+  if (NerfMapping* n = src->nerf; n && n->hasModel())
+    write_nerf = [this, n](const std::filesystem::path& path) {
+      if (!updateModelCopy(*n)) throw std::runtime_error("the NeRF model disappeared (reset)");
+      nerf::saveModel(model_copy_->model(), path);
+    };
+  try {
+    const std::shared_ptr<const Map> copy = src->map_to_save ? src->map_to_save() : nullptr;
+    const MapSaveResult r = saveMapFolder(dir, copy ? *copy : *src->map, *src->camera, src->options, write_nerf);
+    ++saves_;
+    {
+      std::lock_guard<std::mutex> lock(saved_mutex_);
+      last_saved_ = dir.string();
+    }
+    res.success = true;
+    res.message = dir.string();
+    ROS_INFO(
+        "~save_map: %s (generation %lu: %zu keyframes, %zu points, %s, %.1f MB, %zu images written, %zu "
+        "reused, %.2f s)",
+        dir.c_str(), static_cast<unsigned long>(r.generation), r.keyframes, r.points,
+        r.has_nerf ? "with the NeRF model" : "no NeRF model", r.bytes / 1e6, r.images_written, r.images_reused,
+        r.seconds);
+  } catch (const std::exception& e) {
+    const std::string what = e.what();
+    return refuse(what.find(dir.string()) != std::string::npos
+                      ? "cannot save the map: " + what
+                      : "cannot save the map to " + dir.string() + ": " + what);
+  }
+  return true;
+}
+
+void NerfPublisher::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const {
+  s.add("nerf", p_.nerf ? "on" : "off");
+  if (p_.nerf) {
+    // Only stats() here (a short lock of its own): hasModel(), trainingCamera() and viewPoses() take
+    // the model lock, held across whole training steps and renders, and would stall this (the image
+    // callbacks') thread.
+    const auto src = source_();
+    const NerfMapping* nerf = src ? src->nerf : nullptr;
+    const NerfMappingStats st = nerf ? nerf->stats() : NerfMappingStats{};
+    s.add("nerf model", st.views > 0 ? "yes" : "no");
+    s.add("nerf steps", static_cast<int64_t>(st.steps));
+    s.addf("nerf samples/s", "%.0f", st.samples_per_second);
+    s.add("nerf views", st.views);
+    s.addf("nerf psnr recent (dB)", "%.2f", st.psnr_recent);
+    s.add("nerf keyframes dropped", static_cast<uint64_t>(st.keyframes_dropped));
+    s.add("nerf refits", static_cast<int64_t>(st.refits));
+    const uint64_t renders = renders_;
+    s.add("nerf renders", renders);
+    s.addf("nerf render ms (last)", "%.1f", render_ms_last_.load());
+    s.addf("nerf render ms (mean)", "%.1f", renders > 0 ? render_ms_sum_.load() / renders : 0.0);
+    s.addf("nerf model lock wait ms (last)", "%.1f", lock_wait_ms_last_.load());
+    s.addf("nerf model copy ms (last)", "%.1f", copy_ms_last_.load());
+    s.addf("nerf render samples per ray (last)", "%.1f", samples_per_ray_last_.load());
+    s.addf("nerf occupied fraction (last render)", "%.4f", occupied_last_.load());
+    s.add("nerf clouds", static_cast<uint64_t>(clouds_));
+    s.add("nerf cloud points (last)", static_cast<uint64_t>(cloud_points_last_));
+    s.addf("nerf cloud ms (last)", "%.1f", cloud_ms_last_.load());
+    s.add("nerf render errors", static_cast<uint64_t>(render_errors_));
+  }
+  s.add("map saves", static_cast<uint64_t>(saves_));
+  s.add("map save failures", static_cast<uint64_t>(save_failures_));
+  std::lock_guard<std::mutex> lock(saved_mutex_);
+  s.add("map saved to", last_saved_);
+}
+
+std::string NerfPublisher::summary() const {
+  char buf[200];
+  const uint64_t renders = renders_;
+  std::snprintf(buf, sizeof buf, "%lu NeRF renders (mean %.0f ms), %lu NeRF clouds, %lu map saves (%lu failed)",
+                static_cast<unsigned long>(renders), renders > 0 ? render_ms_sum_.load() / renders : 0.0,
+                static_cast<unsigned long>(clouds_), static_cast<unsigned long>(saves_),
+                static_cast<unsigned long>(save_failures_));
+  return buf;
+}
+
+}  // namespace nerfslam::rosnode
