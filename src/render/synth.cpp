@@ -378,9 +378,11 @@ SynthResult writeSynthSequence(const SynthOptions& opts, const fs::path& out,
           while (written < opts.frames && done[written]) ++written;
           prefix = written;
         }
-        if (prefix / opts.index_every > indexed / opts.index_every) {
+        {
+          // `indexed` is read and written under index_mu only (a TSan finding: the check used to
+          // read it unlocked while another writer thread updated it).
           std::lock_guard<std::mutex> lk(index_mu);
-          if (prefix > indexed) {
+          if (prefix > indexed && prefix / opts.index_every > indexed / opts.index_every) {
             index.write(prefix);
             indexed = prefix;
           }
@@ -402,7 +404,10 @@ SynthResult writeSynthSequence(const SynthOptions& opts, const fs::path& out,
   try {
     for (int i = 0; i < opts.frames; ++i) {
       SynthFrame f = seq.render(i);
-      Job job{i, f.bgr, depthToTum16(f.depth)};
+      // The job owns its images outright (moved, not a shared cv::Mat), so the writer thread frees
+      // them: a reference left here would be dropped concurrently through OpenCV's reference count,
+      // which ThreadSanitizer cannot see into (uninstrumented libopencv_core).
+      Job job{i, std::move(f.bgr), depthToTum16(f.depth)};
       {
         std::unique_lock<std::mutex> lk(mu);
         cv_push.wait(lk, [&] { return queue.size() < static_cast<size_t>(opts.queue_size) || worker_error; });
