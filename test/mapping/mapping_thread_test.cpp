@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cstdio>
+#include <vector>
 
 namespace nerfslam {
 namespace {
@@ -45,19 +47,24 @@ TEST(MappingThread, SubmitNeverBlocksAndCountsDrops) {
   auto sub = mt.bus().subscribe(1000);
   mt.start();
   const int n = 40;
+  std::vector<KeyframeInsertion> ins(n);
+  for (int i = 0; i < n; ++i) {
+    ins[i].frame = syntheticFrame(300, i);
+    ins[i].T_world_cam = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.1 * i, 0, 0));
+  }
   int accepted = 0;
   const auto t0 = std::chrono::steady_clock::now();
-  for (int i = 0; i < n; ++i) {
-    KeyframeInsertion k;
-    k.frame = syntheticFrame(300, i);
-    k.T_world_cam = SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.1 * i, 0, 0));
-    accepted += mt.submit(std::move(k));
-  }
+  for (auto& k : ins) accepted += mt.submit(std::move(k));
   const double submit_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   mt.waitIdle();
   EXPECT_TRUE(mt.idle());
   mt.stop();
-  EXPECT_LT(submit_ms, 100.0);
+  // 40 keyframes into a queue of 2, submitted far faster than the thread maps them: a submit that
+  // waited for room would drop nothing. (Not a timing assertion: the time is only printed, it depends
+  // on the machine and on sanitizers.)
+  std::printf("40 submits took %.3f ms; %d accepted, %llu dropped\n", submit_ms, accepted,
+              static_cast<unsigned long long>(mt.droppedKeyframes()));
+  EXPECT_GT(mt.droppedKeyframes(), 0u);
   EXPECT_EQ(static_cast<uint64_t>(accepted) + mt.droppedKeyframes(), static_cast<uint64_t>(n));
   EXPECT_EQ(map.numKeyframes(), static_cast<size_t>(accepted));
   EXPECT_EQ(mt.stats().size(), static_cast<size_t>(accepted));
