@@ -32,6 +32,7 @@
 //                                  nodes fed the same frames), >= 1                          (default 1)
 //   ~exit_when_done        bool    exit after the last frame instead of idling                (default false)
 // A frame whose image cannot be decoded is reported (ROS_ERROR naming the file) and skipped.
+// A restarted master is detected and the topics registered with it again (master_watch.h).
 #include <algorithm>
 #include <cmath>
 #include <memory>
@@ -47,6 +48,7 @@
 #include "nerfslam/core/error.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam_ros/conversions.h"
+#include "nerfslam_ros/master_watch.h"
 
 namespace {
 
@@ -199,6 +201,8 @@ int run(int argc, char** argv) {
     path_pub = nh.advertise<nav_msgs::Path>("ground_truth_path", 1, /*latch=*/true);
     tf_pub = std::make_unique<tf2_ros::TransformBroadcaster>();
   }
+  // Registers the topics again with a restarted master (docs/ros.md, "Faults").
+  const nerfslam::rosnode::MasterWatch master_watch;
 
   if (p.wait_for_subscribers) {
     ROS_INFO("waiting for %d subscriber(s) on %s and %s", p.min_subscribers, cam_pub.getTopic().c_str(),

@@ -34,6 +34,7 @@
 #include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam_ros/conversions.h"
 #include "nerfslam_ros/keyframe_link.h"
+#include "nerfslam_ros/master_watch.h"
 #include "nerfslam_ros/nerf_publisher.h"
 
 namespace {
@@ -163,6 +164,8 @@ class NerfMappingNode {
     s.add("session", static_cast<uint64_t>(replica_.session()));
     s.add("keyframes", replica_.map().numKeyframes());
     s.add("map points", replica_.map().numPoints());
+    s.addf("resident memory (MB)", "%.1f", nerfslam::rosnode::residentMemoryMb());
+    master_watch_.diagnose(s);
     nerf_pub_->diagnose(s);
   }
 
@@ -179,6 +182,7 @@ class NerfMappingNode {
   mutable std::mutex pose_mutex_;
   std::optional<ViewPose> last_pose_, newest_keyframe_;
   std::atomic<uint64_t> refused_{0};
+  nerfslam::rosnode::MasterWatch master_watch_;  // re-registers with a restarted master
 };
 
 }  // namespace

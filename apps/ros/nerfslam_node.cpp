@@ -12,6 +12,12 @@
 // Callbacks only check and enqueue: frames go into a bounded queue (the oldest are dropped and
 // counted when tracking falls behind) and a worker thread feeds the system (colour images as BGR
 // when the NeRF is on, so that it trains on colour; grey otherwise).
+// Input faults (docs/ros.md, "Faults"): the first frame fixes the calibration; a camera_info with other
+// intrinsics or size is refused and counted (~calibration_change refuse) or starts a new map (reset);
+// ~reset takes the next frame's calibration. A stamp not after the previous one is refused, except
+// after >= ~stream_gap s without images with one publisher connected (a restarted publisher or
+// recording: a new stream); a longer gap is logged and counted. The master going away and coming
+// back is detected and everything registered again (MasterWatch, master_watch.h).
 //
 // Threads: ros::spin (image callbacks, ~reset, diagnostics), the tracking worker, the system's own
 // mapping and NeRF training threads, and the "NeRF publisher" thread (niceness ~nerf_render_nice):
@@ -38,9 +44,12 @@
 //                      ~nerf_cloud_views newest training views back-projected (nerf::depthPointCloud),
 //                      or the density grid (nerf::densityPointCloud, ~nerf_cloud_source density);
 //                      every ~nerf_cloud_period s while subscribed (latched)
-//   /diagnostics       diagnostic_updater: frames received/tracked, dropped (queue), refused
-//                      (encoding, size, timestamp), tracking ms, image callback ms, state, keyframes,
-//                      map points; NeRF steps, samples/s, views, running PSNR, renders, map saves
+//   /diagnostics       diagnostic_updater: frames received/tracked, lost before the node (header.seq
+//                      gaps), dropped (queue), refused
+//                      (encoding, size, timestamp, calibration changed), tracking ms, image callback ms,
+//                      state, keyframes, map points, image publishers, stream restarts and gaps,
+//                      resident memory, master losses and re-registrations; NeRF steps, samples/s,
+//                      views, running PSNR, renders, map saves
 // Services:
 //   ~reset             std_srvs/Trigger: discards the map and starts a new system (reinitialises)
 //   ~save_map          std_srvs/Trigger: saves the map folder (map_store.h saveMapFolder; with the
@@ -79,6 +88,11 @@
 //   ~map_dir            string  "nerfslam_map"          folder ~save_map writes (relative: to the
 //                                                       node's working directory, ROS_HOME under roslaunch)
 //   ~keyframe_poses_period double 0.5 (> 0)             tracking_node: s between ~keyframe_poses updates
+//   ~calibration_change string  "refuse"                refuse | reset: frames whose camera_info differs
+//                                                       from the map's calibration are refused (counted,
+//                                                       warned with both), or start a new map
+//   ~stream_gap         double  1.0    (> 0)            s without images after which stamps may go back
+//                                                       (a new stream); longer gaps are logged
 // The NeRF topics, ~save_map and the parameters from ~map_frame on are shared with nerf_mapping_node
 // (nerf_publisher.h).
 #include <algorithm>
@@ -115,6 +129,7 @@
 #include "nerfslam/system/slam_system.h"
 #include "nerfslam_ros/conversions.h"
 #include "nerfslam_ros/keyframe_link.h"
+#include "nerfslam_ros/master_watch.h"
 #include "nerfslam_ros/nerf_publisher.h"
 #include "nerfslam_ros/slam_node.h"
 
@@ -136,6 +151,8 @@ struct Params {
   double frustum_scale = 0.5;
   int max_features = 2000;
   double keyframe_poses_period = 0.5;  // tracking_node only
+  std::string calibration_change = "refuse";
+  double stream_gap = 1.0;
 };
 
 bool isColourEncoding(const std::string& e) { return e == "bgr8" || e == "rgb8" || e == "bgra8" || e == "rgba8"; }
@@ -151,6 +168,8 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   pnh.param("frustum_scale", p.frustum_scale, p.frustum_scale);
   pnh.param("max_features", p.max_features, p.max_features);
   if (tracking) pnh.param("keyframe_poses_period", p.keyframe_poses_period, p.keyframe_poses_period);
+  pnh.param("calibration_change", p.calibration_change, p.calibration_change);
+  pnh.param("stream_gap", p.stream_gap, p.stream_gap);
   ROS_INFO("%s parameters:", tracking ? "tracking_node" : "nerfslam_node");
   ROS_INFO("  ~camera_yaml = %s", p.camera_yaml.empty() ? "(none: camera_info)" : p.camera_yaml.c_str());
   ROS_INFO("  ~queue_size = %d", p.queue_size);
@@ -160,6 +179,8 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   ROS_INFO("  ~frustum_scale = %g", p.frustum_scale);
   ROS_INFO("  ~max_features = %d", p.max_features);
   if (tracking) ROS_INFO("  ~keyframe_poses_period = %g s", p.keyframe_poses_period);
+  ROS_INFO("  ~calibration_change = %s", p.calibration_change.c_str());
+  ROS_INFO("  ~stream_gap = %g s", p.stream_gap);
   // tracking_node: the NeRF runs in nerf_mapping_node (~nerf is not read).
   if (tracking) p.nerf.nerf = false;
   if (std::string err = nerfslam::rosnode::loadNerfParams(pnh, p.nerf, !tracking); !err.empty()) return err;
@@ -172,7 +193,23 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   if (p.max_features < 50) return "~max_features must be >= 50 (got " + std::to_string(p.max_features) + ")";
   if (!(p.keyframe_poses_period > 0) || !std::isfinite(p.keyframe_poses_period))
     return "~keyframe_poses_period must be > 0 (got " + std::to_string(p.keyframe_poses_period) + ")";
+  if (p.calibration_change != "refuse" && p.calibration_change != "reset")
+    return "~calibration_change must be refuse or reset (got " + p.calibration_change + ")";
+  if (!(p.stream_gap > 0) || !std::isfinite(p.stream_gap))
+    return "~stream_gap must be > 0 (got " + std::to_string(p.stream_gap) + ")";
   return "";
+}
+
+// Same calibration (size, intrinsics, distortion), up to rounding.
+bool sameCamera(const Camera& a, const Camera& b) {
+  auto near = [](double x, double y) { return std::abs(x - y) <= 1e-9 * std::max(1.0, std::abs(x) + std::abs(y)); };
+  if (a.width != b.width || a.height != b.height || a.distortion_model != b.distortion_model ||
+      a.distortion.size() != b.distortion.size())
+    return false;
+  if (!near(a.fx, b.fx) || !near(a.fy, b.fy) || !near(a.cx, b.cx) || !near(a.cy, b.cy)) return false;
+  for (size_t i = 0; i < a.distortion.size(); ++i)
+    if (!near(a.distortion[i], b.distortion[i])) return false;
+  return true;
 }
 
 struct QueuedFrame {
@@ -250,6 +287,8 @@ class NerfslamNode {
       camera_sub_ = it_.subscribeCamera("image", 5, &NerfslamNode::onCamera, this);
     }
     wait_timer_ = nh_.createWallTimer(ros::WallDuration(2.0), [this](const ros::WallTimerEvent&) { checkInput(); });
+    publishers_timer_ =
+        nh_.createWallTimer(ros::WallDuration(0.1), [this](const ros::WallTimerEvent&) { watchPublishers(); });
     worker_ = std::thread([this] { work(); });
     nerf_pub_->start();
     if (sender_) sender_->start();
@@ -320,6 +359,7 @@ class NerfslamNode {
 
   void enqueue(const sensor_msgs::ImageConstPtr& image, const std::shared_ptr<const Camera>& cam) {
     ++received_;
+    countLost(image->header.seq);
     last_input_ = ros::WallTime::now().toSec();
     if (!nerfslam::rosbridge::isAcceptedEncoding(image->encoding)) {
       ++refused_encoding_;
@@ -331,11 +371,13 @@ class NerfslamNode {
     }
     std::lock_guard<std::mutex> lock(input_mutex_);
     if (!system_camera_) {
-      system_camera_ = cam;  // the first frame fixes the calibration and image size
+      system_camera_ = cam;  // the first frame (after ~reset) fixes the calibration and image size
     } else if (static_cast<int>(image->width) != system_camera_->width ||
                static_cast<int>(image->height) != system_camera_->height) {
       ++refused_size_;
-      ROS_ERROR_THROTTLE(5.0, "refusing %ux%u image: the system was started on %dx%d images; %lu refused so far",
+      ROS_ERROR_THROTTLE(5.0,
+                         "refusing %ux%u image: the map was built on %dx%d images (call ~reset to start a new map "
+                         "on the new size); %lu refused so far",
                          image->width, image->height, system_camera_->width, system_camera_->height,
                          static_cast<unsigned long>(refused_size_));
       return;
@@ -346,11 +388,37 @@ class NerfslamNode {
                          cam->width, cam->height);
       return;
     }
+    noteStream(*image);
     if (have_last_stamp_ && image->header.stamp <= last_stamp_) {
       ++refused_stamp_;
       ROS_WARN_THROTTLE(5.0, "dropping frame stamped %.6f: not after the previous frame (%.6f); %lu dropped so far",
                         image->header.stamp.toSec(), last_stamp_.toSec(), static_cast<unsigned long>(refused_stamp_));
       return;
+    }
+    if (!sameCamera(*cam, *system_camera_)) {
+      // The map (its points, keyframes and NeRF) was built with system_camera_: frames of another
+      // calibration would be tracked with wrong intrinsics.
+      if (p_.calibration_change == "reset") {
+        ROS_WARN("camera_info changed from [%s] to [%s]: starting a new map with it (~calibration_change reset)",
+                 system_camera_->describe().c_str(), cam->describe().c_str());
+        system_camera_ = cam;  // the worker restarts the system on the new calibration
+      } else {
+        ++refused_calibration_change_;
+        ROS_WARN_THROTTLE(5.0,
+                          "refusing frame: camera_info changed from [%s] (the calibration the map was built with) "
+                          "to [%s]; call ~reset to start a new map with it (or set ~calibration_change reset); "
+                          "%lu refused so far",
+                          system_camera_->describe().c_str(), cam->describe().c_str(),
+                          static_cast<unsigned long>(refused_calibration_change_));
+        return;
+      }
+    }
+    if (have_last_stamp_ && (image->header.stamp - last_stamp_).toSec() > p_.stream_gap) {
+      ++stream_gaps_;
+      ROS_WARN("gap of %.2f s in the image stream (publisher restarted or stalled?) (frames stamped %.6f then %.6f); "
+               "%lu gaps so far",
+               (image->header.stamp - last_stamp_).toSec(), last_stamp_.toSec(), image->header.stamp.toSec(),
+               static_cast<unsigned long>(stream_gaps_));
     }
     last_stamp_ = image->header.stamp;
     have_last_stamp_ = true;
@@ -359,6 +427,45 @@ class NerfslamNode {
     if (queue_.dropped() > dropped_before)
       ROS_WARN_THROTTLE(5.0, "tracking falls behind: oldest queued frame dropped (%lu dropped so far)",
                         static_cast<unsigned long>(queue_.dropped()));
+  }
+
+  // A restarted image publisher (a restarted driver, recording or dataset player): after at least
+  // ~stream_gap s without images, with a single publisher connected, a frame stamped before the
+  // previous one starts a new stream (the ordering check starts over) instead of being refused; a frame
+  // stamped later is a gap. While images keep coming, or several publishers are connected, stamps must
+  // keep increasing. input_mutex_ held.
+  void noteStream(const sensor_msgs::Image& image) {
+    const double now = ros::WallTime::now().toSec();
+    const double silence = now - last_accepted_wall_;
+    last_accepted_wall_ = now;
+    if (!have_last_stamp_ || silence < p_.stream_gap) return;
+    const double jump = (image.header.stamp - last_stamp_).toSec();
+    if (jump > 0) return;  // a gap: counted by enqueue
+    const uint32_t publishers = yaml_camera_ ? image_sub_.getNumPublishers() : camera_sub_.getNumPublishers();
+    if (publishers > 1) return;
+    ++stream_restarts_;
+    ROS_WARN("new image stream after %.2f s without images: stamps went back by %.3f s (a restarted publisher or "
+             "recording); frames are taken from it, tracking relocalises against the map; %lu stream restarts so far",
+             silence, -jump, static_cast<unsigned long>(stream_restarts_));
+    have_last_stamp_ = false;
+  }
+  // Says when the image publishers are gone (sampled every 0.1 s; roscpp keeps the link of a killed
+  // publisher, retrying it, until the master hears of its end or of its replacement).
+  void watchPublishers() {
+    const uint32_t publishers = yaml_camera_ ? image_sub_.getNumPublishers() : camera_sub_.getNumPublishers();
+    const uint32_t before = publishers_.exchange(publishers);
+    if (publishers == 0 && before > 0 && received_ > 0)
+      ROS_WARN("the image publisher disconnected after %lu frames received; waiting for images",
+               static_cast<unsigned long>(received_));
+  }
+
+  // Frames lost before they reached the node (roscpp's subscriber queue overflowing while the callbacks
+  // were starved, an image without its camera_info): gaps in header.seq, when the publisher numbers its
+  // frames (image_folder_publisher does; a seq that does not increase starts over; with several
+  // publishers interleaving on the topic the count is meaningless).
+  void countLost(uint32_t seq) {
+    const uint32_t last = last_seq_.exchange(seq);
+    if (have_seq_.exchange(true) && seq > last + 1 && seq - last < 100000) lost_ += seq - last - 1;
   }
 
   void checkInput() {
@@ -373,6 +480,12 @@ class NerfslamNode {
   }
 
   bool onReset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    {
+      // The next frame fixes the calibration and image size again (a new camera is taken).
+      std::lock_guard<std::mutex> lock(input_mutex_);
+      system_camera_.reset();
+      have_last_stamp_ = false;
+    }
     reset_requested_ = true;
     res.success = true;
     res.message = "the map is discarded before the next frame; the system reinitialises";
@@ -395,7 +508,11 @@ class NerfslamNode {
     while (auto item = queue_.pop()) {
       if (stopping_) break;
       std::unique_lock<std::mutex> lock(system_mutex_);
-      if (reset_requested_.exchange(false) && system_) {
+      const bool new_calibration = system_ && !sameCamera(*item->camera, *worker_camera_);
+      if (new_calibration)
+        ROS_WARN("new calibration [%s] (was [%s]): the map is discarded and a new one started",
+                 item->camera->describe().c_str(), worker_camera_->describe().c_str());
+      if ((reset_requested_.exchange(false) || new_calibration) && system_) {
         setHandle(nullptr);  // the NeRF publisher and the services stop using it
         if (sender_) sender_->attach(nullptr);
         system_->finish(false);
@@ -413,6 +530,7 @@ class NerfslamNode {
           system_ = std::make_shared<SlamSystem>(*item->camera, opt);
           worker_camera_ = item->camera;
         } catch (const std::exception& e) {
+          ++tracking_errors_;
           ROS_ERROR_THROTTLE(5.0, "cannot start the SLAM system: %s", e.what());
           continue;
         }
@@ -629,21 +747,26 @@ class NerfslamNode {
     const uint64_t dropped = queue_.dropped();
     if (state == "lost")
       s.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "tracking lost");
-    else if (state == "weak" || dropped > 0 || refused_encoding_ > 0 || refused_size_ > 0 || refused_stamp_ > 0)
+    else if (state == "weak" || dropped > 0 || refused_encoding_ + refused_size_ + refused_stamp_ +
+                                                     refused_calibration_change_ > 0)
       s.summary(diagnostic_msgs::DiagnosticStatus::WARN,
                 "tracking " + state + (dropped > 0 ? ", frames dropped" : "") +
-                    (refused_encoding_ + refused_size_ + refused_stamp_ > 0 ? ", frames refused" : ""));
+                    (refused_encoding_ + refused_size_ + refused_stamp_ + refused_calibration_change_ > 0
+                         ? ", frames refused"
+                         : ""));
     else
       s.summary(diagnostic_msgs::DiagnosticStatus::OK, "tracking " + state);
     const uint64_t processed = processed_;
     s.add("state", state);
     s.add("frames received", static_cast<uint64_t>(received_));
+    s.add("frames lost before the node (seq gaps)", static_cast<uint64_t>(lost_));
     s.add("frames processed", processed);
     s.add("frames tracked", static_cast<uint64_t>(tracked_));
     s.add("frames dropped (queue full)", dropped);
     s.add("frames refused (encoding)", static_cast<uint64_t>(refused_encoding_));
     s.add("frames refused (size)", static_cast<uint64_t>(refused_size_));
     s.add("frames refused (timestamp)", static_cast<uint64_t>(refused_stamp_));
+    s.add("frames refused (calibration changed)", static_cast<uint64_t>(refused_calibration_change_));
     s.add("camera_info refused", static_cast<uint64_t>(refused_calibration_));
     s.add("tracking errors", static_cast<uint64_t>(tracking_errors_));
     s.add("queue", std::to_string(queue_.size()) + "/" + std::to_string(queue_.capacity()));
@@ -652,6 +775,11 @@ class NerfslamNode {
     s.add("keyframes", kfs);
     s.add("map points", points);
     s.add("resets", static_cast<uint64_t>(resets_));
+    s.add("image publishers", static_cast<uint64_t>(publishers_));
+    s.add("image stream restarts", static_cast<uint64_t>(stream_restarts_));
+    s.add("image stream gaps", static_cast<uint64_t>(stream_gaps_));
+    s.addf("resident memory (MB)", "%.1f", nerfslam::rosnode::residentMemoryMb());
+    master_watch_.diagnose(s);
     const uint64_t callbacks = callbacks_;
     s.addf("image callback ms (mean)", "%.3f", callbacks > 0 ? callback_ms_sum_.load() / callbacks : 0.0);
     s.addf("image callback ms (max)", "%.3f", callback_ms_max_.load());
@@ -676,7 +804,7 @@ class NerfslamNode {
   ros::Publisher pose_pub_, path_pub_, points_pub_, keyframes_pub_, state_pub_;
   ros::ServiceServer reset_srv_, localization_srv_;
   tf2_ros::TransformBroadcaster tf_;
-  ros::WallTimer diag_timer_, wait_timer_;
+  ros::WallTimer diag_timer_, wait_timer_, publishers_timer_;
 
   std::shared_ptr<const Camera> yaml_camera_;
   // Input side (callbacks).
@@ -686,6 +814,8 @@ class NerfslamNode {
   std::shared_ptr<const Camera> system_camera_;
   ros::Time last_stamp_;
   bool have_last_stamp_ = false;
+  std::atomic<uint32_t> publishers_{0};  // image publishers connected at the last watchPublishers()
+  double last_accepted_wall_ = 0;        // wall s of the last frame of the right size (noteStream)
   std::atomic<double> last_input_{0.0};  // wall seconds
   nerfslam::BoundedQueue<QueuedFrame> queue_;
 
@@ -709,7 +839,10 @@ class NerfslamNode {
 
   // Statistics.
   std::atomic<uint64_t> received_{0}, processed_{0}, tracked_{0}, refused_encoding_{0}, refused_size_{0},
-      refused_stamp_{0}, refused_calibration_{0}, tracking_errors_{0}, resets_{0};
+      refused_stamp_{0}, refused_calibration_{0}, refused_calibration_change_{0}, tracking_errors_{0}, resets_{0},
+      stream_restarts_{0}, stream_gaps_{0}, lost_{0};
+  std::atomic<uint32_t> last_seq_{0};
+  std::atomic<bool> have_seq_{false};
   std::atomic<double> tracking_ms_last_{0}, tracking_ms_sum_{0};
   std::atomic<uint64_t> callbacks_{0}, latency_count_{0};
   std::atomic<double> latency_ms_sum_{0}, latency_ms_max_{0};
@@ -717,6 +850,7 @@ class NerfslamNode {
   std::mutex diag_mutex_;
   std::string state_;
   size_t map_points_ = 0, keyframes_ = 0;
+  nerfslam::rosnode::MasterWatch master_watch_;  // re-registers with a restarted master
 };
 
 }  // namespace
