@@ -92,13 +92,20 @@ std::string TimingStats::summary() const {
                      nearestRank(s, 99), *std::max_element(s.begin(), s.end()));
 }
 
-double peakRssMb() {
+namespace {
+// A "Vm...:   <kB> kB" line of /proc/self/status, in MB.
+double procStatusMb(const char* key) {
   std::ifstream in("/proc/self/status");
   std::string line;
+  const size_t n = std::char_traits<char>::length(key);
   while (std::getline(in, line))
-    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // kB
+    if (line.compare(0, n, key) == 0) return std::stod(line.substr(n)) / 1024.0;
   return 0.0;
 }
+}  // namespace
+
+double peakRssMb() { return procStatusMb("VmHWM:"); }
+double currentRssMb() { return procStatusMb("VmRSS:"); }
 
 double threadCpuMs() {
   timespec ts{};

@@ -179,6 +179,13 @@ RunResult runSlam(const RunOptions& ro) {
 
   // Tracking thread.
   std::vector<double> tracking_ms, tracking_cpu_ms;
+  // Memory and map size at the end of every 200-frame window (tracking_ms_windows).
+  struct WindowSample {
+    double rss_mb;
+    size_t keyframes, map_points;
+  };
+  std::vector<WindowSample> window_samples;
+  constexpr size_t kWindow = 200;
   const auto run0 = Clock::now();
   std::thread tracker([&] {
     auto last_print = Clock::now();
@@ -187,6 +194,8 @@ RunResult runSlam(const RunOptions& ro) {
         const FrameRecord r = slam.trackFrame(f->image, f->timestamp, f->index);
         tracking_ms.push_back(r.tracking_ms);
         tracking_cpu_ms.push_back(r.tracking_cpu_ms);
+        if (tracking_cpu_ms.size() % kWindow == 0)  // a /proc read and two counts, every 200 frames
+          window_samples.push_back({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
       } catch (const std::exception& e) {
         std::lock_guard<std::mutex> lock(failure_mutex);
         tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
@@ -259,10 +268,10 @@ RunResult runSlam(const RunOptions& ro) {
   rep["tracking_cpu_ms_median"] = percentile(tracking_cpu_ms, 0.5);
   rep["tracking_cpu_ms_p99"] = percentile(tracking_cpu_ms, 0.99);
   // Does the cost per frame grow with the map? Tracking CPU time (the tracking thread's own, not
-  // inflated by the other threads) per window of 200 frames.
+  // inflated by the other threads) per window of 200 frames, with the process's resident memory and
+  // the map's size at the window's end (full windows only).
   {
     nlohmann::json windows = nlohmann::json::array();
-    constexpr size_t kWindow = 200;
     // Windows of 200 frames from the first; a last window shorter than 100 frames is left out
     // (unless it is the only one).
     for (size_t b = 0; b < tracking_cpu_ms.size() && (b == 0 || b + kWindow / 2 <= tracking_cpu_ms.size());
@@ -276,6 +285,11 @@ RunResult runSlam(const RunOptions& ro) {
                          {"cpu_ms_p99", percentile(cpu, 0.99)},
                          {"wall_ms_median", percentile(wall, 0.5)},
                          {"wall_ms_p99", percentile(wall, 0.99)}});
+      if (const size_t w = b / kWindow; e - b == kWindow && w < window_samples.size()) {
+        windows.back()["rss_mb"] = window_samples[w].rss_mb;
+        windows.back()["keyframes"] = window_samples[w].keyframes;
+        windows.back()["map_points"] = window_samples[w].map_points;
+      }
     }
     rep["tracking_ms_windows"] = windows;
   }

@@ -25,6 +25,8 @@ namespace nerfslam {
 double threadCpuMs();
 // Peak resident set size of this process in MB (VmHWM; 0 where /proc is not available).
 double peakRssMb();
+// Current resident set size of this process in MB (VmRSS; 0 where /proc is not available).
+double currentRssMb();
 
 // Monotonic (steady_clock) stopwatch, started on construction.
 class Stopwatch {
