@@ -108,18 +108,23 @@ TEST(SyntheticSlam, PureRotationNeverInitialises) {
   EXPECT_EQ(posesInFile(r.out / "trajectory.txt"), 0);
 }
 
+// The handheld walk in the synthetic room, rendered into `dir`/seq and opened as a dataset.
+std::unique_ptr<Dataset> renderHandheldRoom(const test::TempDir& dir, int frames, int width, int height) {
+  render::SynthOptions so;
+  so.scene = "room";
+  so.trajectory = "handheld";
+  so.frames = frames;
+  so.width = width;
+  so.height = height;
+  render::writeSynthSequence(so, dir.path() / "seq");
+  return openDataset("tum:" + (dir.path() / "seq").string());
+}
+
 TEST(SyntheticSlam, LocalizationOnlySwitchStopsAndResumesMapping) {
   // Mapping for 50 frames, localisation only for 40 (tracked, the map frozen: no keyframe, no point,
   // no change of a keyframe pose after mapping went idle), then mapping again for 30.
   test::TempDir dir;
-  render::SynthOptions so;
-  so.scene = "room";
-  so.trajectory = "handheld";
-  so.frames = 120;
-  so.width = 640;
-  so.height = 480;
-  render::writeSynthSequence(so, dir.path() / "seq");
-  const auto ds = openDataset("tum:" + (dir.path() / "seq").string());
+  const auto ds = renderHandheldRoom(dir, 120, 640, 480);
   SystemOptions opt;
   opt.nerf.enabled = false;
   SlamSystem sys(ds->camera(), opt);
@@ -169,14 +174,7 @@ TEST(SyntheticSlam, TrackingMappingAndNerfThreadsRunTogether) {
   // that nothing was lost on the way: frames tracked, the NeRF trained on the mapped keyframes with
   // their final poses.
   test::TempDir dir;
-  render::SynthOptions so;
-  so.scene = "room";
-  so.trajectory = "handheld";
-  so.frames = 60;
-  so.width = 320;
-  so.height = 240;
-  render::writeSynthSequence(so, dir.path() / "seq");
-  const auto ds = openDataset("tum:" + (dir.path() / "seq").string());
+  const auto ds = renderHandheldRoom(dir, 60, 320, 240);
   SystemOptions opt;
   opt.nerf.enabled = true;
   opt.nerf.threads = 2;
