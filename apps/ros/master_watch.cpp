@@ -107,9 +107,10 @@ void MasterWatch::poll() {
     if (reachable_.exchange(false) || !seen_) {
       if (seen_) {
         ++losses_;
-        ROS_WARN("the ROS master at %s is unreachable: existing connections keep working, new ones cannot be made; "
-                 "waiting for it to come back to register again",
-                 ros::master::getURI().c_str());
+        ROS_WARN(
+            "the ROS master at %s is unreachable: existing connections keep working, new ones cannot be made; "
+            "waiting for it to come back to register again",
+            ros::master::getURI().c_str());
       }
     }
     return;
@@ -193,8 +194,8 @@ std::string MasterWatch::reregister() {
     for (const auto& uri : uris) u[2][k++] = uri;
     callSelf("publisherUpdate", u, value);
   }
-  const std::string service_api = "rosrpc://" + ros::network::getHost() + ":" +
-                                  std::to_string(ros::ConnectionManager::instance()->getTCPPort());
+  const std::string service_api =
+      "rosrpc://" + ros::network::getHost() + ":" + std::to_string(ros::ConnectionManager::instance()->getTCPPort());
   for (const auto& service : services_) {
     XmlRpc::XmlRpcValue a, payload;
     a[0] = me;

@@ -260,7 +260,8 @@ class NerfslamNode {
                yaml_camera_->cy);
     }
     pose_pub_ = pnh_.advertise<geometry_msgs::PoseStamped>("pose", 10);
-    if (tracking()) sender_ = std::make_unique<nerfslam::rosnode::KeyframeSender>(pnh_, mapFrame(), p_.keyframe_poses_period);
+    if (tracking())
+      sender_ = std::make_unique<nerfslam::rosnode::KeyframeSender>(pnh_, mapFrame(), p_.keyframe_poses_period);
     path_pub_ = pnh_.advertise<nav_msgs::Path>("path", 2, true);
     points_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("map_points", 2, true);
     keyframes_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("keyframes", 2, true);
@@ -312,10 +313,10 @@ class NerfslamNode {
         "%lu encoding, %lu size, %lu timestamp; mean tracking %.1f ms; image callback mean %.3f ms, max %.3f ms; "
         "frame latency (stamp to pose, live stamps) mean %.1f ms, max %.1f ms; %s%s\n",
         tracking() ? "tracking_node" : "nerfslam_node", static_cast<unsigned long>(received_),
-        static_cast<unsigned long>(processed_),
-        static_cast<unsigned long>(tracked_), static_cast<unsigned long>(queue_.dropped()),
-        static_cast<unsigned long>(refused_encoding_), static_cast<unsigned long>(refused_size_),
-        static_cast<unsigned long>(refused_stamp_), processed_ > 0 ? tracking_ms_sum_.load() / processed_ : 0.0,
+        static_cast<unsigned long>(processed_), static_cast<unsigned long>(tracked_),
+        static_cast<unsigned long>(queue_.dropped()), static_cast<unsigned long>(refused_encoding_),
+        static_cast<unsigned long>(refused_size_), static_cast<unsigned long>(refused_stamp_),
+        processed_ > 0 ? tracking_ms_sum_.load() / processed_ : 0.0,
         callbacks_ > 0 ? callback_ms_sum_.load() / callbacks_ : 0.0, callback_ms_max_.load(),
         latency_count_ > 0 ? latency_ms_sum_.load() / latency_count_ : 0.0, latency_ms_max_.load(),
         nerf_pub_->summary().c_str(),
@@ -415,10 +416,11 @@ class NerfslamNode {
     }
     if (have_last_stamp_ && (image->header.stamp - last_stamp_).toSec() > p_.stream_gap) {
       ++stream_gaps_;
-      ROS_WARN("gap of %.2f s in the image stream (publisher restarted or stalled?) (frames stamped %.6f then %.6f); "
-               "%lu gaps so far",
-               (image->header.stamp - last_stamp_).toSec(), last_stamp_.toSec(), image->header.stamp.toSec(),
-               static_cast<unsigned long>(stream_gaps_));
+      ROS_WARN(
+          "gap of %.2f s in the image stream (publisher restarted or stalled?) (frames stamped %.6f then %.6f); "
+          "%lu gaps so far",
+          (image->header.stamp - last_stamp_).toSec(), last_stamp_.toSec(), image->header.stamp.toSec(),
+          static_cast<unsigned long>(stream_gaps_));
     }
     last_stamp_ = image->header.stamp;
     have_last_stamp_ = true;
@@ -444,9 +446,10 @@ class NerfslamNode {
     const uint32_t publishers = yaml_camera_ ? image_sub_.getNumPublishers() : camera_sub_.getNumPublishers();
     if (publishers > 1) return;
     ++stream_restarts_;
-    ROS_WARN("new image stream after %.2f s without images: stamps went back by %.3f s (a restarted publisher or "
-             "recording); frames are taken from it, tracking relocalises against the map; %lu stream restarts so far",
-             silence, -jump, static_cast<unsigned long>(stream_restarts_));
+    ROS_WARN(
+        "new image stream after %.2f s without images: stamps went back by %.3f s (a restarted publisher or "
+        "recording); frames are taken from it, tracking relocalises against the map; %lu stream restarts so far",
+        silence, -jump, static_cast<unsigned long>(stream_restarts_));
     have_last_stamp_ = false;
   }
   // Says when the image publishers are gone (sampled every 0.1 s; roscpp keeps the link of a killed
@@ -556,7 +559,8 @@ class NerfslamNode {
       const bool colour = wants_colour && isColourEncoding(msg.encoding);
       if (wants_colour && !colour && !warned_grey_input_) {
         warned_grey_input_ = true;
-        ROS_WARN("images are '%s': the NeRF trains on grey (publish bgr8/rgb8 for a colour NeRF)", msg.encoding.c_str());
+        ROS_WARN("images are '%s': the NeRF trains on grey (publish bgr8/rgb8 for a colour NeRF)",
+                 msg.encoding.c_str());
       }
       cv::Mat image;
       try {
@@ -747,13 +751,13 @@ class NerfslamNode {
     const uint64_t dropped = queue_.dropped();
     if (state == "lost")
       s.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "tracking lost");
-    else if (state == "weak" || dropped > 0 || refused_encoding_ + refused_size_ + refused_stamp_ +
-                                                     refused_calibration_change_ > 0)
-      s.summary(diagnostic_msgs::DiagnosticStatus::WARN,
-                "tracking " + state + (dropped > 0 ? ", frames dropped" : "") +
-                    (refused_encoding_ + refused_size_ + refused_stamp_ + refused_calibration_change_ > 0
-                         ? ", frames refused"
-                         : ""));
+    else if (state == "weak" || dropped > 0 ||
+             refused_encoding_ + refused_size_ + refused_stamp_ + refused_calibration_change_ > 0)
+      s.summary(
+          diagnostic_msgs::DiagnosticStatus::WARN,
+          "tracking " + state + (dropped > 0 ? ", frames dropped" : "") +
+              (refused_encoding_ + refused_size_ + refused_stamp_ + refused_calibration_change_ > 0 ? ", frames refused"
+                                                                                                    : ""));
     else
       s.summary(diagnostic_msgs::DiagnosticStatus::OK, "tracking " + state);
     const uint64_t processed = processed_;

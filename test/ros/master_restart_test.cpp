@@ -75,7 +75,8 @@ TEST(MasterRestart, NodesRegisterAgainAndTrackAfterTheMasterRestarts) {
                     pub_log = (logs / "master_restart_publisher.log").string();
   for (const auto& l : {core_log, node_log, pub_log}) fs::remove(l);
 
-  auto roscore = std::make_unique<ChildProcess>(std::vector<std::string>{"roscore", "-p", std::to_string(port)}, core_log);
+  auto roscore =
+      std::make_unique<ChildProcess>(std::vector<std::string>{"roscore", "-p", std::to_string(port)}, core_log);
   int argc = 1;
   char name[] = "master_restart_test";
   char* argv[] = {name, nullptr};
@@ -86,8 +87,10 @@ TEST(MasterRestart, NodesRegisterAgainAndTrackAfterTheMasterRestarts) {
   spinner.start();
 
   const fs::path seq = tmp / "room";
-  const auto synth = nerfslam::test::runCli("synth --scene room --frames 120 --fps 15 --size 320x240 --textures "
-                                            "procedural --out '" + seq.string() + "'");
+  const auto synth = nerfslam::test::runCli(
+      "synth --scene room --frames 120 --fps 15 --size 320x240 --textures "
+      "procedural --out '" +
+      seq.string() + "'");
   ASSERT_EQ(synth.exit_code, 0) << synth.output;
   const std::vector<std::string> pub_args = {NERFSLAM_PUBLISHER_PATH, "__name:=master_camera",
                                              "_dataset:=" + seq.string(), "_rate:=15", "_loop:=true"};
@@ -166,10 +169,10 @@ TEST(MasterRestart, NodesRegisterAgainAndTrackAfterTheMasterRestarts) {
   publisher->stop(SIGKILL);
   ros::WallDuration(1.0).sleep();
   const double tracked_mid = diag.num("frames tracked");
-  publisher = std::make_unique<ChildProcess>(
-      std::vector<std::string>{NERFSLAM_PUBLISHER_PATH, "__name:=master_camera_2", "_dataset:=" + seq.string(),
-                               "_rate:=15", "_loop:=true"},
-      pub_log);
+  publisher =
+      std::make_unique<ChildProcess>(std::vector<std::string>{NERFSLAM_PUBLISHER_PATH, "__name:=master_camera_2",
+                                                              "_dataset:=" + seq.string(), "_rate:=15", "_loop:=true"},
+                                     pub_log);
   EXPECT_TRUE(waitFor(30.0, [&] { return diag.num("frames tracked") >= tracked_mid + 30; }))
       << "the node did not track the new publisher's frames (" << diag.num("frames tracked") - tracked_mid << ")";
   std::printf("new publisher after the restart: %.0f frames tracked (%.0f received in all)\n",

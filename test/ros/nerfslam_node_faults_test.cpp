@@ -72,9 +72,7 @@ TEST(NerfslamNodeFaults, PublisherRestartsAndCalibrationChange) {
   };
   auto tracked = [&] { return diag.num("frames tracked"); };
   // Every frame received is accounted for once the queue drained.
-  auto drained = [&] {
-    return waitFor(20.0, [&] { return diag.accounted() == diag.num("frames received"); });
-  };
+  auto drained = [&] { return waitFor(20.0, [&] { return diag.accounted() == diag.num("frames received"); }); };
   // The frames of a stream (until its publisher exited and the queue drained) were tracked again: at
   // least 5, and 30 % of those processed (the node may drop frames on a loaded machine, and a jump is
   // lost until the relocalisation: measured 11/12 to 41/41 in six runs, and 6/19 for the stream with
@@ -93,13 +91,14 @@ TEST(NerfslamNodeFaults, PublisherRestartsAndCalibrationChange) {
     EXPECT_GE(t, min_fraction * n) << what;
   };
   auto report = [&](const char* step) {
-    std::printf("%s: received %.0f processed %.0f tracked %.0f dropped %.0f refused (timestamp %.0f, calibration "
-                "%.0f, size %.0f), stream restarts %.0f, gaps %.0f, resets %.0f, state %s\n",
-                step, diag.num("frames received"), diag.num("frames processed"), tracked(),
-                diag.num("frames dropped (queue full)"), diag.num("frames refused (timestamp)"),
-                diag.num("frames refused (calibration changed)"), diag.num("frames refused (size)"),
-                diag.num("image stream restarts"), diag.num("image stream gaps"), diag.num("resets"),
-                diag.str("state").c_str());
+    std::printf(
+        "%s: received %.0f processed %.0f tracked %.0f dropped %.0f refused (timestamp %.0f, calibration "
+        "%.0f, size %.0f), stream restarts %.0f, gaps %.0f, resets %.0f, state %s\n",
+        step, diag.num("frames received"), diag.num("frames processed"), tracked(),
+        diag.num("frames dropped (queue full)"), diag.num("frames refused (timestamp)"),
+        diag.num("frames refused (calibration changed)"), diag.num("frames refused (size)"),
+        diag.num("image stream restarts"), diag.num("image stream gaps"), diag.num("resets"),
+        diag.str("state").c_str());
     std::fflush(stdout);
   };
 
@@ -150,7 +149,8 @@ TEST(NerfslamNodeFaults, PublisherRestartsAndCalibrationChange) {
   EXPECT_TRUE(drained()) << "frames not accounted for";
   report("4 camera_info with other intrinsics");
   EXPECT_EQ(tracked(), before) << "frames of another calibration were tracked against the map";
-  const std::string refused = rosout.find({"camera_info changed from", original.describe(), changed.describe(), "~reset"});
+  const std::string refused =
+      rosout.find({"camera_info changed from", original.describe(), changed.describe(), "~reset"});
   EXPECT_FALSE(refused.empty()) << "no warning naming the old [" << original.describe() << "] and the new ["
                                 << changed.describe() << "] calibration";
   std::printf("node said: %s\n", refused.c_str());
@@ -161,8 +161,8 @@ TEST(NerfslamNodeFaults, PublisherRestartsAndCalibrationChange) {
   ASSERT_TRUE(ros::service::call(node + "/reset", reset));
   EXPECT_TRUE(reset.response.success);
   b = counts();
-  cam = publisher({"_camera:=" + (tmp / "changed_camera.yaml").string(), "_start:=10", "_max_frames:=60",
-                   "_exit_when_done:=true"});
+  cam = publisher(
+      {"_camera:=" + (tmp / "changed_camera.yaml").string(), "_start:=10", "_max_frames:=60", "_exit_when_done:=true"});
   expectTracked(*cam, b, "after ~reset, the new calibration");
   report("5 ~reset, then the new intrinsics");
   EXPECT_EQ(diag.num("resets"), 1);
@@ -184,7 +184,8 @@ TEST(NerfslamNodeFaults, PublisherRestartsAndCalibrationChange) {
   const double before_reset = rdiag.num("frames tracked");
   cam = publisher({"image:=/reset/image", "_camera:=" + (tmp / "changed_camera.yaml").string(), "_start:=10",
                    "_max_frames:=60", "_exit_when_done:=true"});
-  EXPECT_TRUE(waitFor(30.0, [&] { return rdiag.num("resets") >= 1 && rdiag.num("frames tracked") >= before_reset + 10; }))
+  EXPECT_TRUE(
+      waitFor(30.0, [&] { return rdiag.num("resets") >= 1 && rdiag.num("frames tracked") >= before_reset + 10; }))
       << "~calibration_change reset: " << rdiag.num("resets") << " resets, "
       << rdiag.num("frames tracked") - before_reset << " frames tracked on the new calibration";
   EXPECT_TRUE(waitFor(10.0, [&] { return !cam->running(); }));

@@ -135,8 +135,8 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
 
   // 4. A trained model, and still nothing rendered: nobody subscribes to the NeRF topics.
   ASSERT_TRUE(waitFor(60.0, [&] { return diagString(o, "nerf model") == "yes" && diagValue(o, "nerf steps") > 0; }))
-      << "no NeRF model after 60 s (steps " << diagValue(o, "nerf steps") << ", keyframes "
-      << diagValue(o, "keyframes") << ", frames tracked " << diagValue(o, "frames tracked") << ")";
+      << "no NeRF model after 60 s (steps " << diagValue(o, "nerf steps") << ", keyframes " << diagValue(o, "keyframes")
+      << ", frames tracked " << diagValue(o, "frames tracked") << ")";
   {
     std::lock_guard<std::mutex> lock(o.mutex);
     ASSERT_EQ(o.diag["nerf"], "on");
@@ -186,7 +186,8 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
       EXPECT_EQ(int(v->height), train_h);
       EXPECT_EQ(v->header.frame_id, camera_frame);
       const auto it = images.find(v->header.stamp.toSec());
-      if (it == images.end() || int(v->width) != train_w || int(v->height) != train_h || v->encoding != "rgb8") continue;
+      if (it == images.end() || int(v->width) != train_w || int(v->height) != train_h || v->encoding != "rgb8")
+        continue;
       ++matched;
       cv::Mat real;
       cv::resize(it->second, real, cv::Size(train_w, train_h), 0, 0, cv::INTER_AREA);
@@ -194,8 +195,8 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
       const cv::Mat mean_img(real.size(), real.type(), cv::mean(real));
       const double c = correlation(render, real);
       if (first_corr < -1) first_corr = c;
-      series += std::to_string(int((ros::WallTime::now() - t_subscribed).toSec())) + "s:" +
-                std::to_string(c).substr(0, 5) + " ";
+      series += std::to_string(int((ros::WallTime::now() - t_subscribed).toSec())) +
+                "s:" + std::to_string(c).substr(0, 5) + " ";
       cv::Scalar mu, sd;
       cv::meanStdDev(render, mu, sd);
       if (c > best_corr) {
@@ -208,16 +209,16 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
     return best_corr >= min_correlation;
   };
   const bool good_view = waitFor(60.0, checkViews);
-  std::printf("~nerf_view: %zu checked (%zu matched an input image), correlation with the input first %.3f, best "
-              "%.3f (PSNR %.2f dB; the frame's mean colour %.2f dB), pixel std %.1f; %.1f s after subscribing; "
-              "renders %g, render ms (mean) %s, model lock wait ms (last) %s, copy ms (last) %s; "
-              "NeRF steps %g, views %g, PSNR recent %s dB, samples/s %s\n",
-              checked, matched, first_corr, best_corr, best_psnr, best_baseline, best_std,
-              (ros::WallTime::now() - t_subscribed).toSec(), diagValue(o, "nerf renders"),
-              diagString(o, "nerf render ms (mean)").c_str(), diagString(o, "nerf model lock wait ms (last)").c_str(),
-              diagString(o, "nerf model copy ms (last)").c_str(),
-              diagValue(o, "nerf steps"), diagValue(o, "nerf views"), diagString(o, "nerf psnr recent (dB)").c_str(),
-              diagString(o, "nerf samples/s").c_str());
+  std::printf(
+      "~nerf_view: %zu checked (%zu matched an input image), correlation with the input first %.3f, best "
+      "%.3f (PSNR %.2f dB; the frame's mean colour %.2f dB), pixel std %.1f; %.1f s after subscribing; "
+      "renders %g, render ms (mean) %s, model lock wait ms (last) %s, copy ms (last) %s; "
+      "NeRF steps %g, views %g, PSNR recent %s dB, samples/s %s\n",
+      checked, matched, first_corr, best_corr, best_psnr, best_baseline, best_std,
+      (ros::WallTime::now() - t_subscribed).toSec(), diagValue(o, "nerf renders"),
+      diagString(o, "nerf render ms (mean)").c_str(), diagString(o, "nerf model lock wait ms (last)").c_str(),
+      diagString(o, "nerf model copy ms (last)").c_str(), diagValue(o, "nerf steps"), diagValue(o, "nerf views"),
+      diagString(o, "nerf psnr recent (dB)").c_str(), diagString(o, "nerf samples/s").c_str());
   std::printf("~nerf_view correlation over time: %s\n", series.c_str());
   EXPECT_TRUE(good_view) << "~nerf_view never reached a correlation of " << min_correlation << " with the input";
   EXPECT_GT(matched, 0u) << "no ~nerf_view stamped like an input image";
@@ -317,12 +318,13 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
   EXPECT_EQ(diagValue(o, "map save failures"), 2.0);
   EXPECT_EQ(diagValue(o, "tracking errors"), 0.0);
   EXPECT_EQ(diagValue(o, "nerf render errors"), 0.0);
-  std::printf("frames: %g received, %g processed, %g tracked, %g dropped; tracking ms (mean) %s; image callback ms "
-              "mean %s max %s; %.1f s since the test started\n",
-              diagValue(o, "frames received"), diagValue(o, "frames processed"), diagValue(o, "frames tracked"),
-              diagValue(o, "frames dropped (queue full)"), diagString(o, "tracking ms (mean)").c_str(),
-              diagString(o, "image callback ms (mean)").c_str(), diagString(o, "image callback ms (max)").c_str(),
-              (ros::WallTime::now() - t_start).toSec());
+  std::printf(
+      "frames: %g received, %g processed, %g tracked, %g dropped; tracking ms (mean) %s; image callback ms "
+      "mean %s max %s; %.1f s since the test started\n",
+      diagValue(o, "frames received"), diagValue(o, "frames processed"), diagValue(o, "frames tracked"),
+      diagValue(o, "frames dropped (queue full)"), diagString(o, "tracking ms (mean)").c_str(),
+      diagString(o, "image callback ms (mean)").c_str(), diagString(o, "image callback ms (max)").c_str(),
+      (ros::WallTime::now() - t_start).toSec());
   publisher_thread.join();
   EXPECT_EQ(publisher.exit_code, 0) << publisher.output;
 
@@ -334,17 +336,19 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
   EXPECT_TRUE(loc.response.success) << loc.response.message;
   const double keyframes_before = diagValue(o, "keyframes"), processed_before = diagValue(o, "frames processed"),
                tracked_before = diagValue(o, "frames tracked"), received_before = diagValue(o, "frames received");
-  const auto replay = nerfslam::test::runCommand(
-      "timeout 60 '" NERFSLAM_PUBLISHER_PATH "' __name:=nerf_test_publisher2 _dataset:='" + seq.string() +
-      "' _color:=true _max_frames:=60 _rate:=" + std::to_string(rate) +
-      " _wait_for_subscribers:=true _exit_when_done:=true");
+  const auto replay =
+      nerfslam::test::runCommand("timeout 60 '" NERFSLAM_PUBLISHER_PATH "' __name:=nerf_test_publisher2 _dataset:='" +
+                                 seq.string() + "' _color:=true _max_frames:=60 _rate:=" + std::to_string(rate) +
+                                 " _wait_for_subscribers:=true _exit_when_done:=true");
   EXPECT_EQ(replay.exit_code, 0) << replay.output;
   // The publisher starts when a subscriber (this test's own may be the first) is connected, so the
   // node's connection can miss the first message: wait until the node has processed what it received.
-  EXPECT_TRUE(waitFor(60.0, [&] {
-    const double received = diagValue(o, "frames received") - received_before;
-    return received >= 55 && diagValue(o, "frames processed") - processed_before >= received;
-  })) << "received " << diagValue(o, "frames received") - received_before << ", processed "
+  EXPECT_TRUE(waitFor(60.0,
+                      [&] {
+                        const double received = diagValue(o, "frames received") - received_before;
+                        return received >= 55 && diagValue(o, "frames processed") - processed_before >= received;
+                      }))
+      << "received " << diagValue(o, "frames received") - received_before << ", processed "
       << diagValue(o, "frames processed") - processed_before << " of the 60 replayed frames";
   const double processed_replay = diagValue(o, "frames processed") - processed_before;
   const double tracked_replay = diagValue(o, "frames tracked") - tracked_before;

@@ -57,9 +57,9 @@ TEST(NerfslamNodeSoak, SixtyHertzCameraLatencyDropsTrackingAndMemory) {
   //    a hand-held camera, not twice as fast).
   nerfslam::test::TempDir tmp;
   const fs::path seq = tmp / "room";
-  const auto synth = nerfslam::test::runCli("synth --scene room --frames " + std::to_string(frames) +
-                                            " --fps " + std::to_string(rate) +
-                                            " --size 640x480 --textures procedural --out '" + seq.string() + "'");
+  const auto synth = nerfslam::test::runCli("synth --scene room --frames " + std::to_string(frames) + " --fps " +
+                                            std::to_string(rate) + " --size 640x480 --textures procedural --out '" +
+                                            seq.string() + "'");
   ASSERT_EQ(synth.exit_code, 0) << synth.output;
 
   DiagnosticsValues diag(nh, "nerfslam_node");
@@ -80,9 +80,8 @@ TEST(NerfslamNodeSoak, SixtyHertzCameraLatencyDropsTrackingAndMemory) {
   const std::string log = (tmp / "publisher.log").string();
   t0 = ros::WallTime::now();
   started = true;
-  ChildProcess publisher({NERFSLAM_PUBLISHER_PATH, "__name:=soak_camera", "_dataset:=" + seq.string(),
-                          "_color:=true", "_loop:=true", "_rate:=" + std::to_string(rate),
-                          "_wait_for_subscribers:=true"},
+  ChildProcess publisher({NERFSLAM_PUBLISHER_PATH, "__name:=soak_camera", "_dataset:=" + seq.string(), "_color:=true",
+                          "_loop:=true", "_rate:=" + std::to_string(rate), "_wait_for_subscribers:=true"},
                          log);
   std::vector<Sample> samples;
   std::printf("soak: %.0f s of %d frames 640x480 at %.0f Hz (looping)\n", duration, frames, rate);
@@ -168,7 +167,8 @@ TEST(NerfslamNodeSoak, SixtyHertzCameraLatencyDropsTrackingAndMemory) {
   const double growth = rss_warm > 0 ? (rss_max_after - rss_warm) / rss_warm : 1.0;
 
   std::printf(
-      "soak result: %.0f s at %.0f Hz (~%.0f frames sent): %.0f lost before the node, %.0f received, %.0f processed, %.0f dropped (queue), %.0f "
+      "soak result: %.0f s at %.0f Hz (~%.0f frames sent): %.0f lost before the node, %.0f received, %.0f processed, "
+      "%.0f dropped (queue), %.0f "
       "refused; %.0f tracked = %.1f %% of processed (%.1f %% of received); processed %.1f frames/s; the publisher "
       "had published %.0f frames at the end of its pass %.0f (%.0f %% of %.0f Hz over the run)\n",
       duration, rate, sent, lost, received, processed, dropped, refused, tracked,
@@ -176,12 +176,14 @@ TEST(NerfslamNodeSoak, SixtyHertzCameraLatencyDropsTrackingAndMemory) {
       processed / duration, published, passes, 100.0 * received / sent, rate);
   std::printf("soak latency (image stamp -> ~pose received), %zu poses: median %.1f ms, p99 %.1f ms, max %.1f ms\n",
               ms.size(), p50, p99, pmax);
-  std::printf("soak RSS: %.1f MB at the first sample, %.1f MB at %.0f s (end of warm-up: %.0f %% of the run, last of "
-              "%.0f NeRF scene-box refits at %.0f s), max after %.1f MB, last %.1f MB: growth after warm-up %.2f %%; node: tracking ms (mean) %s, keyframes %s, map points %s, nerf steps "
-              "%s, nerf views %s\n",
-              rss_first, rss_warm, t_warm, 100 * warmup_fraction, refits, t_refit, rss_max_after, rss_last, 100.0 * growth,
-              diag.str("tracking ms (mean)").c_str(), diag.str("keyframes").c_str(), diag.str("map points").c_str(),
-              diag.str("nerf steps").c_str(), diag.str("nerf views").c_str());
+  std::printf(
+      "soak RSS: %.1f MB at the first sample, %.1f MB at %.0f s (end of warm-up: %.0f %% of the run, last of "
+      "%.0f NeRF scene-box refits at %.0f s), max after %.1f MB, last %.1f MB: growth after warm-up %.2f %%; node: "
+      "tracking ms (mean) %s, keyframes %s, map points %s, nerf steps "
+      "%s, nerf views %s\n",
+      rss_first, rss_warm, t_warm, 100 * warmup_fraction, refits, t_refit, rss_max_after, rss_last, 100.0 * growth,
+      diag.str("tracking ms (mean)").c_str(), diag.str("keyframes").c_str(), diag.str("map points").c_str(),
+      diag.str("nerf steps").c_str(), diag.str("nerf views").c_str());
   std::fflush(stdout);
 
   // The camera was close to 60 Hz (the publisher decodes a 640x480 PNG per frame: measured 93 % of

@@ -11,16 +11,16 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
-#include <sstream>
-#include <vector>
-#include <cmath>
 #include <map>
 #include <mutex>
+#include <sstream>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <cv_bridge/cv_bridge.h>
 #include <diagnostic_msgs/DiagnosticArray.h>
@@ -189,15 +189,16 @@ inline std::string readText(const std::string& path) {
 class DiagnosticsValues {
  public:
   DiagnosticsValues(ros::NodeHandle& nh, const std::string& node) : node_(node) {
-    sub_ = nh.subscribe<diagnostic_msgs::DiagnosticArray>(
-        "/diagnostics", 100, [this](const diagnostic_msgs::DiagnosticArrayConstPtr& m) {
-          std::lock_guard<std::mutex> lock(mutex_);
-          for (const auto& st : m->status) {
-            if (st.name.find(node_) == std::string::npos) continue;
-            for (const auto& kv : st.values) values_[kv.key] = kv.value;
-            ++count_;
-          }
-        });
+    sub_ = nh.subscribe<diagnostic_msgs::DiagnosticArray>("/diagnostics", 100,
+                                                          [this](const diagnostic_msgs::DiagnosticArrayConstPtr& m) {
+                                                            std::lock_guard<std::mutex> lock(mutex_);
+                                                            for (const auto& st : m->status) {
+                                                              if (st.name.find(node_) == std::string::npos) continue;
+                                                              for (const auto& kv : st.values)
+                                                                values_[kv.key] = kv.value;
+                                                              ++count_;
+                                                            }
+                                                          });
   }
   std::string str(const std::string& key) const {
     std::lock_guard<std::mutex> lock(mutex_);

@@ -14,8 +14,8 @@
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/render/synth.h"
-#include "nerfslam/system/runner.h"
 #include "nerfslam/system/nerf_mapping.h"
+#include "nerfslam/system/runner.h"
 #include "nerfslam/system/slam_system.h"
 #include "test_support.h"
 
@@ -193,7 +193,8 @@ TEST(SyntheticSlam, TrackingMappingAndNerfThreadsRunTogether) {
   ASSERT_TRUE(sys.initialized());
   ASSERT_NE(sys.nerf(), nullptr);
   // Let the NeRF thread train for a while against a mapping thread that is still busy.
-  for (int k = 0; k < 600 && sys.nerf()->stats().steps < 10; ++k) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  for (int k = 0; k < 600 && sys.nerf()->stats().steps < 10; ++k)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
   sys.finish();
   // Initialised within 30 frames (at 320x240 the 1 degree of parallax takes ~25), every frame tracked from then on.
   const size_t first = states.find('T');

@@ -30,7 +30,7 @@ class MasterWatch {
   MasterWatch(const MasterWatch&) = delete;
   MasterWatch& operator=(const MasterWatch&) = delete;
 
-  uint64_t masterLosses() const { return losses_; }        // times the master became unreachable
+  uint64_t masterLosses() const { return losses_; }              // times the master became unreachable
   uint64_t reregistrations() const { return reregistrations_; }  // times the node registered again
   bool masterReachable() const { return reachable_; }
   // "master reachable", "master losses", "master re-registrations" (and the last one's summary).
