@@ -161,21 +161,23 @@ std::string MasterWatch::reregister() {
   const std::string me = ros::this_node::getName();
   const std::string my_uri = ros::XMLRPCManager::instance()->getServerURI();
   int pubs = 0, subs = 0, srvs = 0, failed = 0;
-  for (const auto& [topic, type] : topicList("getPublications")) {
-    XmlRpc::XmlRpcValue a, payload;
+  // registerPublisher / registerSubscriber(caller_id, topic, type, caller_api).
+  auto registerTopic = [&](const char* method, const std::string& topic, const std::string& type,
+                           XmlRpc::XmlRpcValue& payload) {
+    XmlRpc::XmlRpcValue a;
     a[0] = me;
     a[1] = topic;
     a[2] = type;
     a[3] = my_uri;
-    callMaster("registerPublisher", a, payload) ? ++pubs : ++failed;
+    return callMaster(method, a, payload);
+  };
+  for (const auto& [topic, type] : topicList("getPublications")) {
+    XmlRpc::XmlRpcValue payload;
+    registerTopic("registerPublisher", topic, type, payload) ? ++pubs : ++failed;
   }
   for (const auto& [topic, type] : topicList("getSubscriptions")) {
-    XmlRpc::XmlRpcValue a, payload;
-    a[0] = me;
-    a[1] = topic;
-    a[2] = type;
-    a[3] = my_uri;
-    if (!callMaster("registerSubscriber", a, payload)) {
+    XmlRpc::XmlRpcValue payload;
+    if (!registerTopic("registerSubscriber", topic, type, payload)) {
       ++failed;
       continue;
     }
