@@ -127,6 +127,14 @@ RunResult runSlam(const RunOptions& ro) {
   const bool lockstep = !ro.realtime && sys.lockstep;
 
   // Reader.
+  // Memory and map size at the end of every 200-frame window (tracking_ms_windows), taken
+  // by the reader thread: the map counts take the map's lock, which the tracking thread never waits for.
+  struct WindowSample {
+    double rss_mb;
+    size_t keyframes, map_points;
+  };
+  std::vector<WindowSample> window_samples;
+  constexpr size_t kWindow = 200;
   std::thread reader([&] {
     const auto wall0 = Clock::now();
     double t_first = 0, last_ts = -std::numeric_limits<double>::infinity();
@@ -173,19 +181,14 @@ RunResult runSlam(const RunOptions& ro) {
           slam.waitMappingIdle();
         }
       }
+      if (frames_in.load() % kWindow == 0)
+        window_samples.push_back({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
     }
     frames.close();
   });
 
   // Tracking thread.
   std::vector<double> tracking_ms, tracking_cpu_ms;
-  // Memory and map size at the end of every 200-frame window (tracking_ms_windows).
-  struct WindowSample {
-    double rss_mb;
-    size_t keyframes, map_points;
-  };
-  std::vector<WindowSample> window_samples;
-  constexpr size_t kWindow = 200;
   const auto run0 = Clock::now();
   std::thread tracker([&] {
     auto last_print = Clock::now();
@@ -194,8 +197,6 @@ RunResult runSlam(const RunOptions& ro) {
         const FrameRecord r = slam.trackFrame(f->image, f->timestamp, f->index);
         tracking_ms.push_back(r.tracking_ms);
         tracking_cpu_ms.push_back(r.tracking_cpu_ms);
-        if (tracking_cpu_ms.size() % kWindow == 0)  // a /proc read and two counts, every 200 frames
-          window_samples.push_back({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
       } catch (const std::exception& e) {
         std::lock_guard<std::mutex> lock(failure_mutex);
         tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
