@@ -282,10 +282,9 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   // Relocalisation when lost, and when tracking is weak for want of inliers (a wide baseline or a
   // sudden motion the motion model missed, as between the photos of a multi-view set): the pose with
   // more inliers wins.
-  const bool weak_retry =
-      opt_.relocalize_when_weak && res.quality != TrackingQuality::kLost &&
-      (res.num_inliers < opt_.tracking.tracker.min_inliers_good ||
-       double(res.num_inliers) < opt_.relocalize_inlier_drop * double(last_inliers_));
+  const bool weak_retry = opt_.relocalize_when_weak && res.quality != TrackingQuality::kLost &&
+                          (res.num_inliers < opt_.tracking.tracker.min_inliers_good ||
+                           double(res.num_inliers) < opt_.relocalize_inlier_drop * double(last_inliers_));
   if (res.quality == TrackingQuality::kLost || weak_retry) {
     // Relocalisation against the most recent keyframes.
     std::vector<RelocalizationCandidate> cands;
@@ -355,10 +354,10 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     const bool collapsed =
         opt_.relocalize_when_weak && double(res.num_inliers) < opt_.relocalize_inlier_drop * double(last_inliers_);
     if (after_loss || collapsed) {
-      rec.message = fmt::format("lost: {} inliers {} ({}); relocalisation found no better pose", res.num_inliers,
-                                after_loss ? "are too weak to recover from a loss" : "collapsed from",
-                                after_loss ? fmt::format("< {}", opt_.tracking.tracker.min_inliers_good)
-                                           : std::to_string(last_inliers_));
+      rec.message = fmt::format(
+          "lost: {} inliers {} ({}); relocalisation found no better pose", res.num_inliers,
+          after_loss ? "are too weak to recover from a loss" : "collapsed from",
+          after_loss ? fmt::format("< {}", opt_.tracking.tracker.min_inliers_good) : std::to_string(last_inliers_));
       res.quality = TrackingQuality::kLost;
       if (had_pose) tracker_->setPose(pose_before);
     }
@@ -412,7 +411,19 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   in.frames_since_last_keyframe = frames_since_keyframe_;
   in.median_scene_depth = res.median_depth > 0 ? res.median_depth : 1.0;
   double nearest = std::numeric_limits<double>::infinity();
-  for (const SE3& T : local_.keyframe_poses) nearest = std::min(nearest, (T.translation() - res.T_world_cam.translation()).norm());
+  const Eigen::Vector3d axis = res.T_world_cam.rotation() * Eigen::Vector3d::UnitZ();
+  const double min_cos = std::cos(opt_.tracking.keyframes.covered_view_angle_deg * M_PI / 180.0);
+  // A revisit is a return to the view of an older keyframe: the newest two, which exploration
+  // extends from, do not count (as keyframe culling keeps them).
+  const KeyframeId newest =
+      local_.keyframes.empty() ? 0 : *std::max_element(local_.keyframes.begin(), local_.keyframes.end());
+  for (size_t i = 0; i < local_.keyframe_poses.size(); ++i) {
+    const SE3& T = local_.keyframe_poses[i];
+    const double dist = (T.translation() - res.T_world_cam.translation()).norm();
+    nearest = std::min(nearest, dist);
+    if (local_.keyframes[i] < newest - 1 && (T.rotation() * Eigen::Vector3d::UnitZ()).dot(axis) >= min_cos)
+      in.distance_to_similar_view = std::min(in.distance_to_similar_view, dist);
+  }
   in.distance_to_nearest_keyframe = std::isfinite(nearest) ? nearest : 0.0;
   if (ref_local) {
     in.reference_keyframe_points = local_.keyframe_num_points[ref_slot];
@@ -421,7 +432,8 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
                                        [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });
       if (it == local_.points.end() || it->id != m.point_id) continue;
       const size_t i = static_cast<size_t>(it - local_.points.begin());
-      const auto b = local_.observers.begin() + local_.observer_begin[i], e = local_.observers.begin() + local_.observer_begin[i + 1];
+      const auto b = local_.observers.begin() + local_.observer_begin[i],
+                 e = local_.observers.begin() + local_.observer_begin[i + 1];
       in.tracked_reference_points += std::find(b, e, reference_) != e;
     }
   }

@@ -227,6 +227,20 @@ KeyframeDecision decideKeyframe(const KeyframeDecisionInput& in, const KeyframeP
     d.reason = fmt::format("too soon ({} < {} frames)", in.frames_since_last_keyframe, opt.min_frames_between);
     return d;
   }
+  // A covered view: a keyframe looking the same way is within the baseline (so none is beyond it
+  // either), and tracking still finds most of what the reference keyframe sees (in forward motion an
+  // older keyframe can be that close while the view ahead is already new).
+  const double similar = in.median_scene_depth > 0 ? in.distance_to_similar_view / in.median_scene_depth : 0;
+  const double tracked_ratio = in.reference_keyframe_points > 0
+                                   ? static_cast<double>(in.tracked_reference_points) / in.reference_keyframe_points
+                                   : 0.0;
+  if (!weak && opt.covered_view_angle_deg > 0 && similar <= opt.min_distance_ratio &&
+      tracked_ratio >= opt.covered_min_tracked_ratio) {
+    d.reason =
+        fmt::format("view covered: a keyframe within {:.3f} x depth looks within {:.0f} deg, covisibility {:.2f}",
+                    similar, opt.covered_view_angle_deg, tracked_ratio);
+    return d;
+  }
   if (in.frames_since_last_keyframe >= opt.max_frames_between) {
     d.insert = true;
     d.reason = fmt::format("{} frames since the last keyframe", in.frames_since_last_keyframe);

@@ -210,5 +210,44 @@ TEST(KeyframeDecision, PtamAndCovisibilityCriteria) {
   EXPECT_FALSE(decideKeyframe(in, o).insert);
 }
 
+// A camera back where a keyframe already looks the same way makes no keyframe while tracking is good,
+// whatever the frame count or covisibility say; a new viewing direction, weak tracking or the gate
+// switched off still make one.
+TEST(KeyframeDecision, CoveredViewMakesNoKeyframeWhileTrackingIsGood) {
+  KeyframePolicyOptions o;
+  o.covered_view_angle_deg = 8;  // off by default
+  KeyframeDecisionInput in;
+  in.quality = TrackingQuality::kGood;
+  in.num_inliers = 200;
+  in.median_scene_depth = 10;
+  in.frames_since_last_keyframe = 40;     // beyond max_frames_between
+  in.distance_to_nearest_keyframe = 0.3;  // 0.03 x depth
+  in.distance_to_similar_view = 0.3;      // and that keyframe looks the same way
+  in.reference_keyframe_points = 300;
+  in.tracked_reference_points = 200;  // covisibility 0.67: most of the reference keyframe is found
+  auto d = decideKeyframe(in, o);
+  EXPECT_FALSE(d.insert);
+  EXPECT_NE(d.reason.find("view covered"), std::string::npos) << d.reason;
+  in.tracked_reference_points = 100;  // 0.33: the view ahead is new (forward motion), not covered
+  d = decideKeyframe(in, o);
+  EXPECT_TRUE(d.insert);
+  EXPECT_NE(d.reason.find("frames since"), std::string::npos) << d.reason;
+  in.tracked_reference_points = 200;
+  in.distance_to_similar_view = 5.0;  // the near keyframe looks elsewhere; a similar one is 0.5 x depth away
+  d = decideKeyframe(in, o);
+  EXPECT_TRUE(d.insert);
+  EXPECT_NE(d.reason.find("frames since"), std::string::npos) << d.reason;
+  in.frames_since_last_keyframe = 8;  // covisibility 0.67 < 0.9
+  d = decideKeyframe(in, o);
+  EXPECT_TRUE(d.insert);
+  EXPECT_NE(d.reason.find("covisibility"), std::string::npos) << d.reason;
+  in.distance_to_similar_view = 0.3;
+  in.quality = TrackingQuality::kWeak;  // weak tracking still asks for a keyframe
+  EXPECT_TRUE(decideKeyframe(in, o).insert);
+  in.quality = TrackingQuality::kGood;
+  o.covered_view_angle_deg = 0;  // off: the covisibility criterion decides again
+  EXPECT_TRUE(decideKeyframe(in, o).insert);
+}
+
 }  // namespace
 }  // namespace nerfslam
