@@ -26,7 +26,9 @@
 // which pauses NeRF training (not tracking) for the render's duration.
 //
 // Published (private namespace unless noted):
-//   tf                 ~map_frame -> ~camera_frame (T_map_camera at tracking time), per tracked frame
+//   tf                 ~map_frame -> ~camera_frame (T_map_camera at tracking time), per tracked frame;
+//                      with ~publish_map_to_odom instead ~map_frame -> ~odom_frame, the REP-105
+//                      correction T_map_cam * T_base_cam^-1 * T_odom_base^-1 (map_to_odom.h)
 //   ~pose              geometry_msgs/PoseStamped, the same pose
 //   ~path              nav_msgs/Path, every tracked frame resolved through its reference keyframe's
 //                      bundle-adjusted pose (SlamSystem::trajectory()), frame ~map_frame
@@ -93,6 +95,10 @@
 //                                                       warned with both), or start a new map
 //   ~stream_gap         double  1.0    (> 0)            s without images after which stamps may go back
 //                                                       (a new stream); longer gaps are logged
+//   ~publish_map_to_odom bool   false                   publish map -> ~odom_frame, not map -> ~camera_frame
+//   ~odom_frame         string  "odom"                  the robot's odometry frame (odom -> ~base_frame on tf)
+//   ~base_frame         string  "base_link"             the robot's base (static ~base_frame -> ~camera_frame)
+//   ~tf_timeout         double  0.1    (0..10)          s the map -> odom lookups wait for the robot's tf
 // The NeRF topics, ~save_map and the parameters from ~map_frame on are shared with nerf_mapping_node
 // (nerf_publisher.h).
 #include <algorithm>
@@ -129,6 +135,7 @@
 #include "nerfslam/system/slam_system.h"
 #include "nerfslam_ros/conversions.h"
 #include "nerfslam_ros/keyframe_link.h"
+#include "nerfslam_ros/map_to_odom.h"
 #include "nerfslam_ros/master_watch.h"
 #include "nerfslam_ros/nerf_publisher.h"
 #include "nerfslam_ros/slam_node.h"
@@ -153,6 +160,7 @@ struct Params {
   double keyframe_poses_period = 0.5;  // tracking_node only
   std::string calibration_change = "refuse";
   double stream_gap = 1.0;
+  nerfslam::rosnode::MapToOdomParams odom;  // ~publish_map_to_odom, ~odom_frame, ~base_frame, ~tf_timeout
 };
 
 bool isColourEncoding(const std::string& e) { return e == "bgr8" || e == "rgb8" || e == "bgra8" || e == "rgba8"; }
@@ -184,6 +192,9 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   // tracking_node: the NeRF runs in nerf_mapping_node (~nerf is not read).
   if (tracking) p.nerf.nerf = false;
   if (std::string err = nerfslam::rosnode::loadNerfParams(pnh, p.nerf, !tracking); !err.empty()) return err;
+  if (std::string err = nerfslam::rosnode::loadMapToOdomParams(pnh, p.odom, p.nerf.map_frame, p.nerf.camera_frame);
+      !err.empty())
+    return err;
   if (p.queue_size < 1) return "~queue_size must be >= 1 (got " + std::to_string(p.queue_size) + ")";
   if (!(p.map_points_period >= 0) || !std::isfinite(p.map_points_period))
     return "~map_points_period must be >= 0 (got " + std::to_string(p.map_points_period) + ")";
@@ -290,6 +301,8 @@ class NerfslamNode {
     wait_timer_ = nh_.createWallTimer(ros::WallDuration(2.0), [this](const ros::WallTimerEvent&) { checkInput(); });
     publishers_timer_ =
         nh_.createWallTimer(ros::WallDuration(0.1), [this](const ros::WallTimerEvent&) { watchPublishers(); });
+    if (p_.odom.enabled)
+      map_to_odom_ = std::make_unique<nerfslam::rosnode::MapToOdomPublisher>(p_.odom, mapFrame(), cameraFrame());
     worker_ = std::thread([this] { work(); });
     nerf_pub_->start();
     if (sender_) sender_->start();
@@ -299,6 +312,8 @@ class NerfslamNode {
     stopping_ = true;
     queue_.close();
     if (worker_.joinable()) worker_.join();
+    const std::string odom_summary = map_to_odom_ ? "; " + map_to_odom_->summary() : "";
+    map_to_odom_.reset();
     nerf_pub_->stop();
     if (sender_) {
       sender_->stop();
@@ -311,7 +326,7 @@ class NerfslamNode {
     std::printf(
         "%s: %lu frames received, %lu processed, %lu tracked, %lu dropped (queue full), refused: "
         "%lu encoding, %lu size, %lu timestamp; mean tracking %.1f ms; image callback mean %.3f ms, max %.3f ms; "
-        "frame latency (stamp to pose, live stamps) mean %.1f ms, max %.1f ms; %s%s\n",
+        "frame latency (stamp to pose, live stamps) mean %.1f ms, max %.1f ms; %s%s%s\n",
         tracking() ? "tracking_node" : "nerfslam_node", static_cast<unsigned long>(received_),
         static_cast<unsigned long>(processed_), static_cast<unsigned long>(tracked_),
         static_cast<unsigned long>(queue_.dropped()), static_cast<unsigned long>(refused_encoding_),
@@ -323,7 +338,8 @@ class NerfslamNode {
         sender_ ? ("; " + std::to_string(sender_->keyframesSent()) + " keyframes and " +
                    std::to_string(sender_->poseUpdatesSent()) + " pose updates sent")
                       .c_str()
-                : "");
+                : "",
+        odom_summary.c_str());
     std::fflush(stdout);
   }
 
@@ -562,6 +578,14 @@ class NerfslamNode {
         ROS_WARN("images are '%s': the NeRF trains on grey (publish bgr8/rgb8 for a colour NeRF)",
                  msg.encoding.c_str());
       }
+      if (map_to_odom_ && !msg.header.frame_id.empty() && msg.header.frame_id != cameraFrame() && !warned_frame_id_) {
+        warned_frame_id_ = true;
+        ROS_WARN(
+            "images are in frame '%s' but ~camera_frame is '%s': map -> %s is computed through tf %s -> %s; "
+            "set ~camera_frame to the camera's optical frame if that is not where it is mounted",
+            msg.header.frame_id.c_str(), cameraFrame().c_str(), p_.odom.odom_frame.c_str(), p_.odom.base_frame.c_str(),
+            cameraFrame().c_str());
+      }
       cv::Mat image;
       try {
         image = nerfslam::rosbridge::fromImageMsg(
@@ -628,7 +652,11 @@ class NerfslamNode {
     }
     publishState(stateName(rec));
     if (rec.tracked) {
-      tf_.sendTransform(nerfslam::rosbridge::toTransformStamped(rec.T_world_cam, mapFrame(), cameraFrame(), stamp));
+      // A frame has one parent on tf: with the REP-105 correction the camera's is the robot's base.
+      if (map_to_odom_)
+        map_to_odom_->push(stamp, rec.T_world_cam);
+      else
+        tf_.sendTransform(nerfslam::rosbridge::toTransformStamped(rec.T_world_cam, mapFrame(), cameraFrame(), stamp));
       geometry_msgs::PoseStamped ps;
       ps.header.stamp = stamp;
       ps.header.frame_id = mapFrame();
@@ -797,6 +825,7 @@ class NerfslamNode {
       s.add("keyframe session", static_cast<uint64_t>(sender_->session()));
     }
     nerf_pub_->diagnose(s);
+    if (map_to_odom_) map_to_odom_->diagnose(s);
   }
 
   ros::NodeHandle nh_, pnh_;
@@ -828,6 +857,7 @@ class NerfslamNode {
   std::shared_ptr<SlamSystem> system_;
   uint64_t generation_ = 0;  // of system_ (worker only)
   bool warned_grey_input_ = false;
+  bool warned_frame_id_ = false;
   std::atomic<bool> reset_requested_{false}, stopping_{false}, localization_only_{false};
   std::shared_ptr<const Camera> worker_camera_;
   ros::WallTime last_map_publish_;
@@ -840,6 +870,7 @@ class NerfslamNode {
   std::optional<TrackedPose> last_pose_;
   std::unique_ptr<nerfslam::rosnode::NerfPublisher> nerf_pub_;  // ~nerf_*, ~save_map
   std::unique_ptr<nerfslam::rosnode::KeyframeSender> sender_;   // tracking_node: ~keyframes_out, ~keyframe_poses
+  std::unique_ptr<nerfslam::rosnode::MapToOdomPublisher> map_to_odom_;  // ~publish_map_to_odom
 
   // Statistics.
   std::atomic<uint64_t> received_{0}, processed_{0}, tracked_{0}, refused_encoding_{0}, refused_size_{0},
