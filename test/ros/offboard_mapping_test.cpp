@@ -109,17 +109,13 @@ TEST(OffboardMapping, SplitNodesMatchTheSingleNodeAndTrainTheNerf) {
 
   // 1. The sequence (its frame 0 is at t = 0, a "no stamp" stamp: played from frame 1).
   nerfslam::test::TempDir tmp;
-  const fs::path seq = tmp / "room";
-  const auto synth = nerfslam::test::runCli("synth --scene room --frames " + std::to_string(frames + 1) +
-                                            " --size 320x240 --textures procedural --out '" + seq.string() + "'");
-  ASSERT_EQ(synth.exit_code, 0) << synth.output;
-  nerfslam::DatasetOptions dopts;
-  dopts.start = 1;
-  const auto ds = nerfslam::openDataset(seq.string(), dopts);
+  const auto room = nerfslam::rostest_util::renderSyntheticRoom(tmp.path(), frames);
+  ASSERT_TRUE(room.dataset);
+  const fs::path& seq = room.dir;
+  const auto& ds = room.dataset;
   ASSERT_EQ(ds->size(), size_t(frames));
   const nerfslam::Camera cam = ds->camera();
-  nerfslam::Trajectory gt;
-  for (size_t i = 0; i < ds->size(); ++i) gt.push_back({ds->timestamp(i), *ds->groundTruth(i)});
+  const nerfslam::Trajectory& gt = room.ground_truth;
   const cv::Size train = nerfslam::rostest_util::nerfTrainingSize(cam);
   const int train_w = train.width, train_h = train.height;
 

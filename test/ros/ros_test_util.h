@@ -31,7 +31,10 @@
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/camera.h"
+#include "nerfslam/io/dataset.h"
+#include "nerfslam/io/trajectory.h"
 #include "nerfslam/system/nerf_mapping.h"
+#include "test_support.h"
 
 namespace nerfslam::rostest_util {
 
@@ -66,6 +69,32 @@ struct Joiner {
     if (t.joinable()) t.join();
   }
 };
+
+// The synthetic room of the ROS tests (320x240, procedural textures) rendered by `nerfslam synth`
+// into `dir`/room and opened from its frame 1 (frame 0 is at t = 0, a "no stamp" stamp; play it with
+// image_folder_publisher's `_start:=1`), with its ground truth. `dataset` is null after a failure,
+// which is reported.
+struct SyntheticRoom {
+  std::filesystem::path dir;
+  std::unique_ptr<Dataset> dataset;
+  Trajectory ground_truth;
+};
+inline SyntheticRoom renderSyntheticRoom(const std::filesystem::path& dir, int frames) {
+  SyntheticRoom room;
+  room.dir = dir / "room";
+  const auto synth = test::runCli("synth --scene room --frames " + std::to_string(frames + 1) +
+                                  " --size 320x240 --textures procedural --out '" + room.dir.string() + "'");
+  if (synth.exit_code != 0) {
+    ADD_FAILURE() << synth.output;
+    return room;
+  }
+  DatasetOptions opts;
+  opts.start = 1;
+  room.dataset = openDataset(room.dir.string(), opts);
+  for (size_t i = 0; i < room.dataset->size(); ++i)
+    room.ground_truth.push_back({room.dataset->timestamp(i), *room.dataset->groundTruth(i)});
+  return room;
+}
 
 // The size of the views a node's NeRF renders (its training resolution, NerfMappingOptions' default
 // downscale: the nodes use the default).
