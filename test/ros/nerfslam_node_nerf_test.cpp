@@ -334,8 +334,25 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
   loc.request.data = true;
   ASSERT_TRUE(ros::service::call(node + "/set_localization_only", loc));
   EXPECT_TRUE(loc.response.success) << loc.response.message;
-  const double keyframes_before = diagValue(o, "keyframes"), processed_before = diagValue(o, "frames processed"),
-               tracked_before = diagValue(o, "frames tracked"), received_before = diagValue(o, "frames received");
+  // A keyframe made before the switch may still wait for the mapping thread, and the diagnostics are
+  // up to a period old: the count to compare with is the one that holds over 3 fresh messages.
+  double keyframes_before = -1;
+  int stable = 0, seen = 0;
+  EXPECT_TRUE(waitFor(30.0, [&] {
+    int count = 0;
+    {
+      std::lock_guard<std::mutex> lock(o.mutex);
+      count = o.diag_count;
+    }
+    if (count == seen) return false;
+    seen = count;
+    const double k = diagValue(o, "keyframes");
+    stable = k == keyframes_before ? stable + 1 : 0;
+    keyframes_before = k;
+    return stable >= 3;
+  })) << "the keyframe count did not settle after the switch to localisation";
+  const double processed_before = diagValue(o, "frames processed"), tracked_before = diagValue(o, "frames tracked"),
+               received_before = diagValue(o, "frames received");
   const auto replay =
       nerfslam::test::runCommand("timeout 60 '" NERFSLAM_PUBLISHER_PATH "' __name:=nerf_test_publisher2 _dataset:='" +
                                  seq.string() + "' _color:=true _max_frames:=60 _rate:=" + std::to_string(rate) +
