@@ -252,13 +252,10 @@ KeyframeDecision decideKeyframe(const KeyframeDecisionInput& in, const KeyframeP
     d.reason = fmt::format("baseline {:.3f} > {:.3f} x depth", ratio, opt.min_distance_ratio);
     return d;
   }
-  if (in.reference_keyframe_points > 0) {
-    const double cov = static_cast<double>(in.tracked_reference_points) / in.reference_keyframe_points;
-    if (cov < opt.max_tracked_ratio && in.mapping_idle) {
-      d.insert = true;
-      d.reason = fmt::format("covisibility {:.2f} < {:.2f}", cov, opt.max_tracked_ratio);
-      return d;
-    }
+  if (in.reference_keyframe_points > 0 && tracked_ratio < opt.max_tracked_ratio && in.mapping_idle) {
+    d.insert = true;
+    d.reason = fmt::format("covisibility {:.2f} < {:.2f}", tracked_ratio, opt.max_tracked_ratio);
+    return d;
   }
   if (weak && in.mapping_idle) {
     d.insert = true;
