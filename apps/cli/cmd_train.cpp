@@ -103,7 +103,7 @@ int runTrain(const TrainArgs& a) {
   const fs::path out(a.out);
   ensureDirectory(out);
   double aabb_scale = 1.0;
-  const Split split = loadSplit(a, &aabb_scale);
+  Split split = loadSplit(a, &aabb_scale);
   spdlog::info("train: {} training and {} test views of {}x{}, aabb_scale {}", split.train.size(), split.test.size(),
                split.train[0].camera.width, split.train[0].camera.height, aabb_scale);
 
@@ -114,7 +114,8 @@ int runTrain(const TrainArgs& a) {
   to.threads = a.threads;
   to.seed = a.seed;
   to.samples_per_step = a.samples_per_step;
-  nerf::Trainer trainer(model, split.train, to);
+  const size_t num_train = split.train.size();
+  nerf::Trainer trainer(model, std::move(split.train), to);  // it keeps a compact copy of each image
 
   std::ostringstream curve;
   curve << "seconds,steps,test_psnr\n";
@@ -161,7 +162,7 @@ int runTrain(const TrainArgs& a) {
   rep["downscale"] = a.downscale;
   rep["threads"] = a.threads;
   rep["seed"] = a.seed;
-  rep["train_views"] = split.train.size();
+  rep["train_views"] = num_train;
   rep["test_views"] = split.test.size();
   rep["psnr_test_mean"] = final_eval.psnr;
   rep["ssim_test_mean"] = final_eval.ssim;

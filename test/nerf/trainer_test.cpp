@@ -280,10 +280,11 @@ TEST(Trainer, MakeTrainingViewDownscalesWithPremultipliedAlpha) {
   ASSERT_EQ(v.image.cols, 4);
   EXPECT_EQ(v.camera.width, 4);
   EXPECT_NEAR(v.camera.fx, 5.0, 1e-12);
-  const cv::Vec4f px = v.image.at<cv::Vec4f>(0, 2);  // columns 4,5: one opaque, one transparent
-  EXPECT_NEAR(px[0], 1.0f, 1e-5);                    // R
-  EXPECT_NEAR(px[1], 0.0f, 1e-5);
-  EXPECT_NEAR(px[3], 0.5f, 1e-5);  // alpha
+  ASSERT_EQ(v.image.type(), CV_8UC4);                // 8-bit RGBA, as the trainer keeps it
+  const cv::Vec4b px = v.image.at<cv::Vec4b>(0, 2);  // columns 4,5: one opaque, one transparent
+  EXPECT_EQ(px[0], 255);                             // R
+  EXPECT_EQ(px[1], 0);
+  EXPECT_NEAR(px[3], 128, 1);  // alpha 0.5
 }
 
 }  // namespace

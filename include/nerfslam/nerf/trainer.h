@@ -40,7 +40,8 @@ void validateView(const TrainingView& view, const std::string& source);
 
 // A view from an image as OpenCV decodes it (8-bit BGR or BGRA, e.g. DatasetFrame::image with
 // ImageMode::kUnchanged), resized by 1/downscale (area averaging on premultiplied alpha, so edges do
-// not pick up the colour of transparent pixels) with the camera scaled to match.
+// not pick up the colour of transparent pixels) with the camera scaled to match. The image is 8-bit
+// RGB or RGBA (rounded after the resize).
 TrainingView makeTrainingView(const cv::Mat& bgr_or_bgra, const Camera& camera, const SE3& T_world_cam,
                               double downscale = 1.0, const std::string& source = "image");
 // The view's image as float RGB composited over `background` (what a render is compared with).
