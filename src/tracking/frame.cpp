@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <ctime>
+#include <limits>
 
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -61,27 +62,54 @@ const CentroidOrientation& orientation() {
   return o;
 }
 
-// FAST on one level at the minimum threshold once, then per grid cell: the strongest corners,
-// preferring those above the normal threshold (= adaptive threshold per cell).
+// FAST per level with an adaptive threshold per grid cell (ORB-SLAM's scheme): corners at the normal
+// threshold over the whole level, then, only in cells that hold fewer than their quota, at the
+// minimum threshold. Per cell the strongest corners are kept. (One pass at the minimum threshold
+// finds the same corners -- a FAST score does not depend on the threshold it was found with -- but
+// in textured images it costs several times more: almost every pixel passes the low threshold's
+// early rejection tests.)
 std::vector<cv::KeyPoint> detectLevel(const cv::Mat& img, int target, const FeatureOptions& opt) {
   std::vector<cv::KeyPoint> out;
   const int w = img.cols, h = img.rows;
   if (w <= 2 * kEdge + 2 || h <= 2 * kEdge + 2 || target <= 0) return out;
   const cv::Rect roi(kEdge - 3, kEdge - 3, w - 2 * kEdge + 6, h - 2 * kEdge + 6);
-  std::vector<cv::KeyPoint> all;
-  cv::FAST(img(roi), all, std::min(opt.min_fast_threshold, opt.fast_threshold), true);
+  const int high = std::max(opt.min_fast_threshold, opt.fast_threshold);
+  const int low = std::min(opt.min_fast_threshold, opt.fast_threshold);
   const int cell = opt.cell_size;
   const int cols = std::max(1, (w - 2 * kEdge + cell - 1) / cell);
   const int rows = std::max(1, (h - 2 * kEdge + cell - 1) / cell);
   std::vector<std::vector<cv::KeyPoint>> cells(static_cast<size_t>(cols * rows));
-  for (auto& k : all) {
-    k.pt.x += roi.x;
-    k.pt.y += roi.y;
-    if (k.pt.x < kEdge || k.pt.y < kEdge || k.pt.x >= w - kEdge || k.pt.y >= h - kEdge) continue;
-    const int cx = std::min(cols - 1, static_cast<int>((k.pt.x - kEdge) / cell));
-    const int cy = std::min(rows - 1, static_cast<int>((k.pt.y - kEdge) / cell));
-    cells[static_cast<size_t>(cy * cols + cx)].push_back(k);
-  }
+  // Adds the corners found in `area` (a sub-rectangle of the level) that lie in `keep` to their
+  // cells; only those scoring under `below` (the others were found by the first pass).
+  auto detect = [&](const cv::Rect& area, const cv::Rect& keep, int threshold, float below,
+                    std::vector<cv::KeyPoint>* buf) {
+    buf->clear();
+    cv::FAST(img(area), *buf, threshold, true);
+    for (auto& k : *buf) {
+      if (k.response >= below) continue;
+      k.pt.x += area.x;
+      k.pt.y += area.y;
+      if (k.pt.x < kEdge || k.pt.y < kEdge || k.pt.x >= w - kEdge || k.pt.y >= h - kEdge) continue;
+      if (!keep.contains(k.pt)) continue;
+      const int cx = std::min(cols - 1, static_cast<int>((k.pt.x - kEdge) / cell));
+      const int cy = std::min(rows - 1, static_cast<int>((k.pt.y - kEdge) / cell));
+      cells[static_cast<size_t>(cy * cols + cx)].push_back(k);
+    }
+  };
+  std::vector<cv::KeyPoint> buf;
+  detect(roi, roi, high, std::numeric_limits<float>::infinity(), &buf);
+  // A cell's low-threshold corners, from its rectangle grown by 4 pixels (FAST's radius-3 circle
+  // and the 3x3 non-maximum suppression then see the same neighbours as in a pass over the whole
+  // level); only corners inside the cell are kept. Run where a cell's strong corners may not be
+  // enough, so the selection below is the one a single low-threshold pass would give.
+  std::vector<char> has_low(cells.size(), low >= high);
+  auto needLow = [&](size_t c, size_t wanted) {
+    if (has_low[c] || cells[c].size() > wanted) return;
+    has_low[c] = 1;
+    const int cx = static_cast<int>(c) % cols, cy = static_cast<int>(c) / cols;
+    const cv::Rect r(kEdge + cx * cell, kEdge + cy * cell, cell, cell);
+    detect(cv::Rect(r.x - 4, r.y - 4, r.width + 8, r.height + 8) & roi, r, low, static_cast<float>(high), &buf);
+  };
   // Quota per cell; cells with fewer corners pass their unused quota on (two sweeps).
   int quota = std::max(1, (target + cols * rows - 1) / (cols * rows));
   std::vector<char> done(cells.size(), 0);
@@ -89,12 +117,18 @@ std::vector<cv::KeyPoint> detectLevel(const cv::Mat& img, int target, const Feat
   for (int sweep = 0; sweep < 2 && remaining > 0; ++sweep) {
     int open = 0;
     for (size_t c = 0; c < cells.size(); ++c) {
+      // Sweep 0: a cell with exactly `quota` strong corners needs its weak ones too (they decide
+      // whether it stays open for the second sweep).
+      needLow(c, static_cast<size_t>(quota));
       auto& v = cells[c];
       if (done[c] || v.empty()) continue;
       const int take = std::min<int>(quota, static_cast<int>(v.size()));
-      // strongest first: responses above fast_threshold naturally rank first
-      std::partial_sort(v.begin(), v.begin() + take, v.end(),
-                        [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response > b.response; });
+      // Strongest first (responses above fast_threshold naturally rank first); ties by position, so
+      // the choice does not depend on the order the two passes found the corners in.
+      std::partial_sort(v.begin(), v.begin() + take, v.end(), [](const cv::KeyPoint& a, const cv::KeyPoint& b) {
+        if (a.response != b.response) return a.response > b.response;
+        return a.pt.y != b.pt.y ? a.pt.y < b.pt.y : a.pt.x < b.pt.x;
+      });
       out.insert(out.end(), v.begin(), v.begin() + take);
       v.erase(v.begin(), v.begin() + take);
       remaining -= take;
@@ -115,6 +149,12 @@ std::vector<cv::KeyPoint> detectLevel(const cv::Mat& img, int target, const Feat
 
 }  // namespace
 
+// The project builds for baseline x86-64, where __builtin_popcountll is a library call; a clone
+// with the POPCNT instruction is picked at load time on CPUs that have it (every x86-64 CPU since
+// 2008), the default clone elsewhere.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+__attribute__((target_clones("popcnt", "default")))
+#endif
 int descriptorDistance(const uint8_t* a, const uint8_t* b) {
   int d = 0;
   for (int i = 0; i < 32; i += 8) {
@@ -128,7 +168,14 @@ int descriptorDistance(const uint8_t* a, const uint8_t* b) {
 
 std::vector<int> Frame::featuresInArea(const Eigen::Vector2d& uv, double radius, int min_level, int max_level) const {
   std::vector<int> out;
-  if (grid_cols == 0 || !std::isfinite(uv.x()) || !std::isfinite(uv.y())) return out;
+  featuresInArea(uv, radius, &out, min_level, max_level);
+  return out;
+}
+
+void Frame::featuresInArea(const Eigen::Vector2d& uv, double radius, std::vector<int>* out, int min_level,
+                           int max_level) const {
+  out->clear();
+  if (grid_cols == 0 || !std::isfinite(uv.x()) || !std::isfinite(uv.y())) return;
   const int x0 = std::max(0, static_cast<int>(std::floor((uv.x() - radius) / grid_cell)));
   const int x1 = std::min(grid_cols - 1, static_cast<int>(std::floor((uv.x() + radius) / grid_cell)));
   const int y0 = std::max(0, static_cast<int>(std::floor((uv.y() - radius) / grid_cell)));
@@ -140,9 +187,8 @@ std::vector<int> Frame::featuresInArea(const Eigen::Vector2d& uv, double radius,
         const cv::KeyPoint& k = keypoints[static_cast<size_t>(i)];
         if (k.octave < min_level || (max_level >= 0 && k.octave > max_level)) continue;
         const double dx = k.pt.x - uv.x(), dy = k.pt.y - uv.y();
-        if (dx * dx + dy * dy <= r2) out.push_back(i);
+        if (dx * dx + dy * dy <= r2) out->push_back(i);
       }
-  return out;
 }
 
 void Frame::buildGrid() {

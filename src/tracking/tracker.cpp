@@ -81,6 +81,7 @@ std::vector<MapMatch> matchByProjection(const Frame& frame, const std::vector<Tr
   std::vector<int> best_for_feature(frame.size(), -1);  // index into matches
   std::vector<int> best_dist_for_feature(frame.size(), 256);
   int n_cand = 0;
+  std::vector<int> near;
   for (size_t pi = 0; pi < local_map.size(); ++pi) {
     const TrackingMapPoint& mp = local_map[pi];
     if (mp.descriptor.empty()) continue;
@@ -93,7 +94,8 @@ std::vector<MapMatch> matchByProjection(const Frame& frame, const std::vector<Tr
     ++n_cand;
     const uint8_t* d = mp.descriptor.ptr<uint8_t>();
     int best = 256, second = 256, best_idx = -1, best_level = -1, second_level = -1;
-    for (int j : frame.featuresInArea(uv, radius_px)) {
+    frame.featuresInArea(uv, radius_px, &near);
+    for (int j : near) {
       const int dd = descriptorDistance(d, frame.descriptors.ptr<uint8_t>(j));
       if (dd < best) {
         second = best;

@@ -61,6 +61,9 @@ class Frame {
   // levels [min_level, max_level] (max_level < 0: all). Uses a grid; cost ~ radius^2.
   std::vector<int> featuresInArea(const Eigen::Vector2d& uv, double radius, int min_level = 0,
                                   int max_level = -1) const;
+  // The same into `out` (cleared first): a caller in a loop reuses one buffer, no allocation per call.
+  void featuresInArea(const Eigen::Vector2d& uv, double radius, std::vector<int>* out, int min_level = 0,
+                      int max_level = -1) const;
 
   // (Re)builds the grid featuresInArea uses from the keypoints (extractFrame calls it).
   void buildGrid();
@@ -69,9 +72,9 @@ class Frame {
   std::vector<std::vector<int>> grid;
 };
 
-// Builds the frame: grey conversion (if BGR; the BGR image is kept in Frame::colour), pyramid, FAST with grid bucketing + adaptive
-// threshold, orientation, ORB descriptors, undistortion. Throws nerfslam::Error on an empty image
-// or an image whose size differs from the camera's.
+// Builds the frame: grey conversion (if BGR; the BGR image is kept in Frame::colour), pyramid, FAST with grid bucketing
+// + adaptive threshold, orientation, ORB descriptors, undistortion. Throws nerfslam::Error on an empty image or an
+// image whose size differs from the camera's.
 Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOptions& options, uint64_t id = 0,
                    double timestamp = 0);
 
