@@ -1,6 +1,9 @@
 #include "nerfslam/core/timing.h"
 
 #include <ctime>
+#if defined(__linux__)
+#include <pthread.h>
+#endif
 #include <fstream>
 #include <string>
 
@@ -14,6 +17,16 @@
 #include "nerfslam/core/error.h"
 
 namespace nerfslam {
+
+void setThreadName(const char* name) {
+#if defined(__linux__)
+  char buf[16] = {};
+  for (size_t i = 0; i < sizeof(buf) - 1 && name[i]; ++i) buf[i] = name[i];
+  pthread_setname_np(pthread_self(), buf);
+#else
+  (void)name;
+#endif
+}
 
 namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();

@@ -5,6 +5,7 @@
 #include <spdlog/spdlog.h>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/timing.h"
 
 namespace nerfslam {
 
@@ -47,6 +48,7 @@ void MappingThread::start() {
   started_ = true;
   thread_running_ = true;
   thread_ = std::thread([this] {
+    setThreadName("nerfslam-map");
     run();
     thread_running_ = false;
     idle_cv_.notify_all();

@@ -9,10 +9,11 @@
 #include <cmath>
 #include <random>
 
-#include <opencv2/imgproc.hpp>
 #include <spdlog/spdlog.h>
+#include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/nerf/model_io.h"
 #include "nerfslam/nerf/renderer.h"
@@ -77,7 +78,10 @@ NerfMapping::~NerfMapping() {
 void NerfMapping::start() {
   if (started_) return;
   started_ = true;
-  thread_ = std::thread([this] { run(); });
+  thread_ = std::thread([this] {
+    setThreadName("nerfslam-nerf");
+    run();
+  });
 }
 
 void NerfMapping::stop() {
@@ -151,8 +155,8 @@ void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
     ++stats_.keyframes_skipped;
     return;
   }
-  nerf::TrainingView view = nerf::makeTrainingView(bgr, ev.frame->camera, pose, opt_.downscale,
-                                                   fmt::format("keyframe {}", ev.id));
+  nerf::TrainingView view =
+      nerf::makeTrainingView(bgr, ev.frame->camera, pose, opt_.downscale, fmt::format("keyframe {}", ev.id));
   train_camera_ = view.camera;
   pending_.push_back(std::move(view));
   pending_kf_.push_back(ev.id);
@@ -349,9 +353,10 @@ void NerfMapping::refit() {
   auto fresh = std::make_unique<nerf::NerfModel>(
       nerf::NerfModel::create(model_->field->config(), scene, uint64_t(opt_.seed) + uint64_t(refits)));
   const double loss = distill(*model_, *fresh, opt_.distill_steps);
-  spdlog::info("NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), old field distilled in {} "
-               "steps (final loss {:.4f})",
-               old.scale, scene.scale, opt_.distill_steps, loss);
+  spdlog::info(
+      "NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), old field distilled in {} "
+      "steps (final loss {:.4f})",
+      old.scale, scene.scale, opt_.distill_steps, loss);
   std::vector<nerf::TrainingView> views;
   for (size_t i = 0; i < trainer_->numViews(); ++i) views.push_back(trainer_->view(i));
   trainer_.reset();
@@ -397,7 +402,8 @@ double NerfMapping::distill(const nerf::NerfModel& from, nerf::NerfModel& to, in
           const int x = cell(rng), y = cell(rng), z = cell(rng);
           if (!from.grid->occupiedCell(0, x, y, z)) continue;
           const float c = nerf::OccupancyGrid::cellSize(0);
-          p = from.grid->cellCenter(0, x, y, z) + c * Eigen::Vector3f(u01(rng) - 0.5f, u01(rng) - 0.5f, u01(rng) - 0.5f);
+          p = from.grid->cellCenter(0, x, y, z) +
+              c * Eigen::Vector3f(u01(rng) - 0.5f, u01(rng) - 0.5f, u01(rng) - 0.5f);
           break;
         }
       }
@@ -456,8 +462,8 @@ void NerfMapping::resume(const std::filesystem::path& model_file, bool train) {
   }
   for (const auto& kf : map_.keyframes()) addKeyframe({kf.id, kf.T_world_cam, kf.frame});
   frozen_ = !train;
-  spdlog::info("NeRF: continuing from {} ({} training steps, {} views){}", model_file.string(),
-               model_->training_steps, view_kf_.size(), train ? "" : "; frozen (localisation only)");
+  spdlog::info("NeRF: continuing from {} ({} training steps, {} views){}", model_file.string(), model_->training_steps,
+               view_kf_.size(), train ? "" : "; frozen (localisation only)");
 }
 
 int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads) {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <mutex>
 #include <thread>
 
@@ -136,6 +137,7 @@ RunResult runSlam(const RunOptions& ro) {
   std::vector<WindowSample> window_samples;
   constexpr size_t kWindow = 200;
   std::thread reader([&] {
+    setThreadName("nerfslam-read");
     const auto wall0 = Clock::now();
     double t_first = 0, last_ts = -std::numeric_limits<double>::infinity();
     for (std::size_t i = 0; i < ds->size() && !abort_run; ++i) {
@@ -189,14 +191,28 @@ RunResult runSlam(const RunOptions& ro) {
 
   // Tracking thread.
   std::vector<double> tracking_ms, tracking_cpu_ms;
+  // Per-stage CPU time of the frames tracked against the map (not the initialisation attempts).
+  std::map<std::string, std::vector<double>> stage_cpu_ms;
   const auto run0 = Clock::now();
   std::thread tracker([&] {
+    setThreadName("nerfslam-track");
     auto last_print = Clock::now();
     while (auto f = frames.pop()) {
       try {
         const FrameRecord r = slam.trackFrame(f->image, f->timestamp, f->index);
         tracking_ms.push_back(r.tracking_ms);
         tracking_cpu_ms.push_back(r.tracking_cpu_ms);
+        if (r.track_cpu_ms > 0) {
+          stage_cpu_ms["extract"].push_back(r.extract_cpu_ms);
+          stage_cpu_ms["extract.pyramid"].push_back(r.extract_stages.pyramid_ms);
+          stage_cpu_ms["extract.fast"].push_back(r.extract_stages.fast_ms);
+          stage_cpu_ms["extract.descriptors"].push_back(r.extract_stages.descriptor_ms);
+          stage_cpu_ms["local_map"].push_back(r.local_map_cpu_ms);
+          stage_cpu_ms["track"].push_back(r.track_cpu_ms);
+          stage_cpu_ms["relocalize"].push_back(r.relocalize_cpu_ms);
+          stage_cpu_ms["other"].push_back(r.tracking_cpu_ms - r.extract_cpu_ms - r.local_map_cpu_ms - r.track_cpu_ms -
+                                          r.relocalize_cpu_ms);
+        }
       } catch (const std::exception& e) {
         std::lock_guard<std::mutex> lock(failure_mutex);
         tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
@@ -268,6 +284,11 @@ RunResult runSlam(const RunOptions& ro) {
   rep["tracking_ms_p99"] = percentile(tracking_ms, 0.99);
   rep["tracking_cpu_ms_median"] = percentile(tracking_cpu_ms, 0.5);
   rep["tracking_cpu_ms_p99"] = percentile(tracking_cpu_ms, 0.99);
+  for (const auto& [stage, v] : stage_cpu_ms) {
+    rep["tracking_stage_cpu_ms"][stage] = {{"median", percentile(v, 0.5)}, {"p99", percentile(v, 0.99)}};
+    spdlog::info("tracking stage {:<19} CPU median {:6.2f} ms, p99 {:6.2f} ms ({} frames)", stage, percentile(v, 0.5),
+                 percentile(v, 0.99), v.size());
+  }
   // Does the cost per frame grow with the map? Tracking CPU time (the tracking thread's own, not
   // inflated by the other threads) per window of 200 frames, with the process's resident memory and
   // the map's size at the window's end (full windows only).

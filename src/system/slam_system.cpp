@@ -241,6 +241,8 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   rec.timestamp = timestamp;
   auto frame = std::make_shared<Frame>(extractFrame(image, camera_, opt_.tracking.features, index, timestamp));
   rec.num_features = static_cast<int>(frame->size());
+  rec.extract_cpu_ms = threadCpuMs() - cpu0;
+  rec.extract_stages = frame->timings;
   std::shared_ptr<const Frame> cframe = frame;
   auto finishRecord = [&]() -> FrameRecord {
     rec.state = state_;
@@ -274,10 +276,18 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   }
 
   ++frames_since_keyframe_;
+  double lap = threadCpuMs();
+  auto lapMs = [&lap] {
+    const double now = threadCpuMs(), ms = now - lap;
+    lap = now;
+    return ms;
+  };
   buildLocalMap(reference_, false);
+  rec.local_map_cpu_ms = lapMs();
   const bool had_pose = tracker_->hasPose();
   const SE3 pose_before = tracker_->lastPose();  // restored when a weak pose is refused below
   TrackingResult res = tracker_->track(*frame, local_.points);
+  rec.track_cpu_ms = lapMs();
   bool relocalised = false;
   // Relocalisation when lost, and when tracking is weak for want of inliers (a wide baseline or a
   // sudden motion the motion model missed, as between the photos of a multi-view set): the pose with
@@ -344,6 +354,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
       rec.message = "lost: " + (res.message.empty() ? std::string("too few inliers") : res.message) +
                     "; relocalisation: " + rl.reason;
     }
+    rec.relocalize_cpu_ms = lapMs();
   }
   // Weak evidence is not enough where the motion model cannot be trusted: right after a loss, or
   // when the inliers collapsed and relocalisation found nothing better (a jump or a gap in the

@@ -23,6 +23,9 @@ namespace nerfslam {
 // of work on one core, independent of how many other processes share the machine; wall time minus
 // this is time spent preempted or blocked.
 double threadCpuMs();
+// Names the calling thread (at most 15 characters are kept; Linux only, a no-op elsewhere) so that
+// top -H, perf and gdb show which of the system's threads is which ("track", "map", "nerf", ...).
+void setThreadName(const char* name);
 // Peak resident set size of this process in MB (VmHWM; 0 where /proc is not available).
 double peakRssMb();
 // Current resident set size of this process in MB (VmRSS; 0 where /proc is not available).

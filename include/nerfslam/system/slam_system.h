@@ -22,6 +22,7 @@
 #include "nerfslam/mapping/map.h"
 #include "nerfslam/mapping/mapping_thread.h"
 #include "nerfslam/system/nerf_mapping.h"
+#include "nerfslam/tracking/frame.h"
 #include "nerfslam/tracking/options.h"
 
 namespace nerfslam {
@@ -38,11 +39,12 @@ inline TrackingOptions systemTrackingDefaults() {
 struct SystemOptions {
   TrackingOptions tracking = systemTrackingDefaults();
   MappingOptions mapping;
-  int local_map_keyframes = 10;          // covisible keyframes whose points tracking matches against
-  int keyframe_queue = 3;                // mapping input queue (keyframes beyond it are dropped)
+  int local_map_keyframes = 10;  // covisible keyframes whose points tracking matches against
+  int keyframe_queue = 3;        // mapping input queue (keyframes beyond it are dropped)
   int relocalization_candidates = 5;
-  bool relocalize_when_weak = true;  // also relocalise frames tracked with fewer than min_inliers_good inliers
-  double relocalize_inlier_drop = 0.25;  // ... or with fewer than this fraction of the previous frame's inliers     // most recent keyframes tried when lost
+  bool relocalize_when_weak = true;      // also relocalise frames tracked with fewer than min_inliers_good inliers
+  double relocalize_inlier_drop = 0.25;  // ... or with fewer than this fraction of the previous frame's inliers     //
+                                         // most recent keyframes tried when lost
   int min_initial_points = 50;           // map points required after initialisation + BA
   int reset_if_lost_with_keyframes = 3;  // lost with at most this many keyframes: reinitialise
   int frame_queue = 2;                   // frames between the reader and the tracking thread
@@ -102,6 +104,11 @@ struct FrameRecord {
   SE3 T_ref_cam;
   double tracking_ms = 0;      // wall time of trackFrame
   double tracking_cpu_ms = 0;  // CPU time of the calling thread in trackFrame (independent of load)
+  // Where that CPU time went: feature extraction (pyramid, FAST, descriptors), local map updates,
+  // tracking against the local map (matching and pose optimisation), relocalisation attempts, and
+  // the rest (keyframe decision, statistics for point culling).
+  double extract_cpu_ms = 0, local_map_cpu_ms = 0, track_cpu_ms = 0, relocalize_cpu_ms = 0;
+  FrameTimings extract_stages;  // the extraction's own stages (pyramid, FAST, descriptors)
   std::string message;
 };
 
