@@ -265,6 +265,7 @@ RunResult runSlam(const RunOptions& ro) {
   rep["initializations"] = slam.initializationCount();
   rep["initialization_model"] = slam.initializationModel();
   rep["relocalizations"] = slam.relocalizations();
+  rep["local_map_rebuilds"] = slam.localMapRebuilds();
   rep["mode"] = toString(slam.mapMode());
   rep["map_loaded"] = ro.map ? nlohmann::json(ro.map->string()) : nlohmann::json(nullptr);
   rep["relocalized_at_frame"] = slam.relocalizedAtFrame();

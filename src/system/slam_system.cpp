@@ -212,6 +212,7 @@ void SlamSystem::buildLocalMap(KeyframeId ref, bool wait) {
   if (ref != local_.ref || map_->structureVersion() != local_.structure_version) {
     TrackingLocalMap m;
     if (map_->localMapForTracking(ref, opt_.local_map_keyframes, &m, must)) {
+      ++local_map_rebuilds_;
       local_ = std::move(m);
       local_stale_frames_ = 0;
       return;

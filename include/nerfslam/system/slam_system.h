@@ -149,6 +149,8 @@ class SlamSystem {
   // Two-view model of the last successful initialisation ("fundamental" or "homography"; empty before).
   const std::string& initializationModel() const { return init_model_; }
   int relocalizations() const { return relocalizations_; }
+  // Times the tracking thread rebuilt its local map (the other frames reuse it, refreshing positions).
+  int64_t localMapRebuilds() const { return local_map_rebuilds_; }
   MapMode mapMode() const { return map_mode_; }
   // Localisation only, switchable at run time from any thread (e.g. a ROS service): while on, frames
   // are tracked and relocalised against the map but add no keyframes, no statistics and never reset
@@ -182,6 +184,7 @@ class SlamSystem {
   // refreshed when BA moved poses and points, kept when the map's lock is taken (stale frames).
   TrackingLocalMap local_;
   int local_stale_frames_ = 0;
+  int64_t local_map_rebuilds_ = 0;
   int last_inliers_ = 0;  // inliers of the last tracked frame (0: the last frame was not tracked)
   KeyframeId reference_ = -1;
   std::vector<MapMatch> last_matches_;
