@@ -15,6 +15,8 @@ RayMarcher::RayMarcher(const Ray& ray, const OccupancyGrid& grid, const SceneTra
                        const MarchParams& params, float jitter)
     : ray_(ray), grid_(&grid), params_(params) {
   inv_dir_ = ray.dir.cwiseInverse();
+  // NeRF length per cascade-0 cell unit along each axis (kRes is a power of two: exact).
+  cell_len_ = inv_dir_ * (1.f / float(OccupancyGrid::kRes));
   float tn, tf;
   if (!intersectAabb(ray, scene.aabbMin(), scene.aabbMax(), &tn, &tf)) {
     done_ = true;
@@ -25,58 +27,51 @@ RayMarcher::RayMarcher(const Ray& ray, const OccupancyGrid& grid, const SceneTra
   t_ = t0_;
 }
 
-float RayMarcher::distanceToNextCell(const Eigen::Vector3f& p, int mip, int shift) const {
-  // In the cascade's cell units: cell coordinate u = ((p - 0.5) / 2^mip + 0.5) * res; blocks of
-  // 2^shift cells. The exit boundary along an axis is the next block face in the direction of
-  // travel: floor(u / B) + 1 going up, floor(u / B) going down (0 away when exactly on a face).
-  const float res = OccupancyGrid::kRes;
-  const float inv = OccupancyGrid::invCascadeScale(mip);
-  const float B = float(1 << shift), invB = 1.f / B;
-  float best = INFINITY;
-  for (int a = 0; a < 3; ++a) {
-    if (ray_.dir[a] == 0.f) continue;
-    const float u = ((p[a] - 0.5f) * inv + 0.5f) * res;
-    const float ub = std::floor(u * invB);
-    const float boundary = (ray_.dir[a] > 0 ? ub + 1.f : ub) * B;
-    const float dist = (boundary - u) / res / inv * inv_dir_[a];  // back to NeRF length
-    best = std::min(best, dist);
-  }
-  return std::max(best, 0.f);
-}
-
 int RayMarcher::next(int max, float* xyz, float* t_out, float* dt_out) {
+  // The state lives in locals during the loop: the output pointers may alias the members as far
+  // as the compiler knows, which would otherwise put a store and a reload of t_ and k_ on the
+  // latency chain of every step.
   int n = 0;
+  if (done_) return 0;
   const bool constant = params_.cone_angle == 0.f;
   const OccupancyGrid& grid = *grid_;
+  const MarchParams params = params_;
+  const Eigen::Vector3f origin = ray_.origin, dir = ray_.dir;
+  const float t0 = t0_, t_far = t_far_;
+  float t = t_;
+  int64_t k = k_;
+  bool done = false;
   constexpr int kRes = OccupancyGrid::kRes;
-  while (!done_ && n < max) {
-    if (t_ >= t_far_) {
-      done_ = true;
+  while (n < max) {
+    if (t >= t_far) {
+      done = true;
       break;
     }
-    const float dt = params_.dt(t_);
-    const Eigen::Vector3f p = ray_.origin + t_ * ray_.dir;
+    const float dt = params.dt(t);
+    const Eigen::Vector3f p = origin + t * dir;
     const int mip = grid.mipFromDt(dt, p);
-    // The cell (and, when empty, the largest empty block around it) at this cascade.
+    // The cell (and, when empty, the largest empty block around it) at this cascade, in cell units
+    // u = ((p - 0.5) / 2^mip + 0.5) * res.
     const float inv = OccupancyGrid::invCascadeScale(mip);
+    float u[3];
     int c[3];
     bool inside = true;
     for (int a = 0; a < 3; ++a) {
-      const float u = ((p[a] - 0.5f) * inv + 0.5f) * kRes;
-      inside &= u >= 0.f && u < float(kRes);
-      c[a] = inside ? int(u) : 0;
+      u[a] = ((p[a] - 0.5f) * inv + 0.5f) * kRes;
+      inside &= u[a] >= 0.f && u[a] < float(kRes);
+      c[a] = inside ? int(u[a]) : 0;
     }
     if (inside && grid.occupiedCell(mip, c[0], c[1], c[2])) {
       xyz[3 * n + 0] = p.x();
       xyz[3 * n + 1] = p.y();
       xyz[3 * n + 2] = p.z();
-      t_out[n] = t_;
+      t_out[n] = t;
       dt_out[n] = dt;
       ++n;
       if (constant)
-        t_ = t0_ + float(++k_) * kMinStep;
+        t = t0 + float(++k) * kMinStep;
       else
-        t_ += dt;
+        t += dt;
       continue;
     }
     int shift = 0;
@@ -86,17 +81,20 @@ int RayMarcher::next(int max, float* xyz, float* t_out, float* dt_out) {
       else if (!grid.occupiedBlock(mip, 1, c[0] >> 2, c[1] >> 2, c[2] >> 2))
         shift = 2;
     }
-    const float t_target = t_ + distanceToNextCell(p, mip, shift);
+    const float t_target = t + distanceToNextCell(u, mip, shift);
     if (constant) {
-      const int64_t k_target = int64_t(std::ceil((t_target - t0_) / kMinStep - 1e-3f));
-      k_ = std::max(k_ + 1, k_target);
-      t_ = t0_ + float(k_) * kMinStep;
+      const int64_t k_target = ceilSmall((t_target - t0) * kInvMinStep - 1e-3f);
+      k = std::max(k + 1, k_target);
+      t = t0 + float(k) * kMinStep;
     } else {
       do {
-        t_ += params_.dt(t_);
-      } while (t_ < t_target);
+        t += params.dt(t);
+      } while (t < t_target);
     }
   }
+  t_ = t;
+  k_ = k;
+  done_ = done;
   return n;
 }
 

@@ -23,10 +23,37 @@ constexpr float kNormalWeight = 1e-3f;  // samples below this weight do not cont
 constexpr float kColorMinWeight = 1e-4f;
 constexpr float kColorSkipBudget = 1e-3f;
 
+// Samples per live ray and round: the first round marches 8 (most rays have few samples or reach
+// their surface within them), later rounds 4. Samples a ray marches past its termination (T <
+// kMinTransmittance) within a round are evaluated for nothing, so small later rounds waste fewer
+// (lego 640x480: 12.6 -> 9.4 field samples per pixel against 8/16/32); the rounds themselves are
+// cheap, the batches stay large (every live ray of the tile).
+constexpr int kFirstChunk = 8;
+constexpr int kChunk = 4;
+
+// Pixel offsets of a block in Z order: rays next to each other in a batch are neighbours in the
+// image, so their samples share more hash-table lines (lego: ~3% less CPU than row order).
+const std::vector<std::pair<int, int>> kMorton = [] {
+  std::vector<std::pair<int, int>> v;
+  for (int i = 0; v.size() < size_t(kBlockW * kBlockH); ++i) {
+    int x = 0, y = 0;
+    for (int b = 0; b < 8; ++b) {
+      x |= ((i >> (2 * b)) & 1) << b;
+      y |= ((i >> (2 * b + 1)) & 1) << b;
+    }
+    if (x < kBlockW && y < kBlockH) v.emplace_back(x, y);
+  }
+  return v;
+}();
+
+template <class T>
+void grow(std::vector<T>& v, size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
 struct RayState {
   int pixel;
   float T = 1.f, rgb[3] = {0, 0, 0}, dsum = 0, d2sum = 0, n[3] = {0, 0, 0}, skipped = 0;
-  bool alive = true;
 };
 
 }  // namespace
@@ -66,10 +93,11 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
     std::vector<Ray> rays;
     std::vector<RayState> st;
     std::vector<float> pos, fpos, t, dt, sigma, geo, grad;
-    std::vector<int> owner;                // ray of each batch sample
-    std::vector<int> c_idx;                // samples whose colour is evaluated
+    std::vector<int> owner;  // ray of each batch sample
+    std::vector<int> live;   // rays of the tile still marching
+    std::vector<int> c_idx;  // samples whose colour is evaluated
     std::vector<float> c_w, c_geo, c_dir, c_rgb;
-    std::vector<int> g_idx, g_ray;         // samples whose normals are needed
+    std::vector<int> g_idx, g_ray;  // samples whose normals are needed
     std::vector<float> g_w, g_pos;
     int64_t samples = 0;
     for (int tile = next_tile++; tile < n_tiles; tile = next_tile++) {
@@ -78,30 +106,33 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
       marchers.clear();
       rays.clear();
       st.clear();
-      for (int y = y0; y < y1; ++y)
-        for (int x = x0; x < x1; ++x) {
-          const Ray r = gen.ray(x, y);
-          rays.push_back(r);
-          marchers.emplace_back(r, *model.grid, model.scene, march, 0.5f);
-          RayState s;
-          s.pixel = y * W + x;
-          s.alive = !marchers.back().done();
-          st.push_back(s);
-        }
-      for (int round = 0;; ++round) {
-        const int chunk = round == 0 ? 8 : round == 1 ? 16 : 32;
-        const size_t cap = st.size() * size_t(chunk);
-        for (auto* v : {&pos, &fpos}) v->resize(3 * cap);
-        for (auto* v : {&t, &dt, &sigma}) v->resize(cap);
-        geo.resize(cap * kDensityOutputs);
-        owner.clear();
+      live.clear();
+      for (const auto& [dx, dy] : kMorton) {
+        const int x = x0 + dx, y = y0 + dy;
+        if (x >= x1 || y >= y1) continue;
+        const Ray r = gen.ray(x, y);
+        rays.push_back(r);
+        marchers.emplace_back(r, *model.grid, model.scene, march, 0.5f);
+        if (!marchers.back().done()) live.push_back(int(st.size()));
+        RayState s;
+        s.pixel = y * W + x;
+        st.push_back(s);
+      }
+      for (int round = 0; !live.empty(); ++round) {
+        const int chunk = round == 0 ? kFirstChunk : kChunk;
+        const size_t cap = live.size() * size_t(chunk);
+        grow(pos, 3 * cap);
+        grow(fpos, 3 * cap);
+        grow(t, cap);
+        grow(dt, cap);
+        grow(sigma, cap);
+        grow(owner, cap);
+        grow(geo, cap * kDensityOutputs);
         int used = 0;
-        for (size_t i = 0; i < st.size(); ++i) {
-          if (!st[i].alive) continue;
-          const int n = marchers[i].next(chunk, pos.data() + 3 * used, t.data() + used, dt.data() + used);
-          owner.insert(owner.end(), size_t(n), int(i));
+        for (const int i : live) {
+          const int n = marchers[size_t(i)].next(chunk, pos.data() + 3 * used, t.data() + used, dt.data() + used);
+          std::fill(owner.data() + used, owner.data() + used + n, i);
           used += n;
-          if (n == 0) st[i].alive = false;
         }
         if (used == 0) break;
         samples += used;
@@ -167,8 +198,11 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
             for (int c = 0; c < 3; ++c) s.n[c] -= g_w[j] * g[c] / len;
           }
         }
-        for (size_t i = 0; i < st.size(); ++i)
-          if (st[i].alive && (st[i].T < kMinTransmittance || marchers[i].done())) st[i].alive = false;
+        // Compact the live rays: those that terminated or left the scene drop out.
+        size_t k = 0;
+        for (const int i : live)
+          if (st[size_t(i)].T >= kMinTransmittance && !marchers[size_t(i)].done()) live[k++] = i;
+        live.resize(k);
       }
       for (size_t i = 0; i < st.size(); ++i) {
         const RayState& s = st[i];

@@ -74,6 +74,10 @@ TEST(MlpGemm, ForwardShapesAllTargets) {
   runCase({64, 16, 64, false, Epilogue::kNone, false});  // hidden -> density outputs
   runCase({37, 64, 64, false, Epilogue::kRelu, false});  // ragged tile
   runCase({5, 128, 64, false, Epilogue::kNone, false});  // wide layer, tiny batch
+  // Row remainders after the 6-row (AVX-512) or 4-row blocks: 4 + 2 + 1, 2 + 1, 4.
+  runCase({63, 64, 32, true, Epilogue::kRelu, false});
+  runCase({11, 16, 64, false, Epilogue::kNone, false});
+  runCase({10, 64, 32, false, Epilogue::kRelu, false});
 }
 
 TEST(MlpGemm, BackwardShapesAllTargets) {

@@ -72,8 +72,13 @@ class OccupancyGrid {
     if (e == 0) return b == 0 ? 0 : -126;  // zero; subnormals (only ever clamped to mip 0)
     return e - 126;
   }
-  // 2^-mip, exactly.
-  static float invCascadeScale(int mip) { return 1.f / float(1u << mip); }
+  // 2^-mip, exactly, without a division (the march calls this at every step); mip in [0, 126].
+  static float invCascadeScale(int mip) {
+    const uint32_t b = uint32_t(127 - mip) << 23;
+    float f;
+    std::memcpy(&f, &b, 4);
+    return f;
+  }
 
   // Sets every value to `value` and marks every cell occupied regardless of it (start of training:
   // everything is a candidate until the first update).
@@ -96,7 +101,7 @@ class OccupancyGrid {
   int cascades_;
   float threshold_ = 0;
   std::vector<float> values_;
-  std::vector<uint64_t> bits_;  // cascades * kCells bits
+  std::vector<uint64_t> bits_;       // cascades * kCells bits
   std::vector<uint64_t> coarse_[2];  // block levels 1 and 2 (see occupiedBlock)
 };
 

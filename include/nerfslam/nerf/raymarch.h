@@ -11,6 +11,9 @@
 // sample. With cone_angle = 0, t_k = t_0 + k * dt exactly (no accumulated rounding). In empty space
 // the jump goes to the exit of the largest empty block around the cell (16^3 or 4^3 cells, see
 // OccupancyGrid::occupiedBlock) rather than of the cell alone: fewer tests, the same samples.
+#include <algorithm>
+#include <cmath>
+
 #include "nerfslam/nerf/occupancy.h"
 #include "nerfslam/nerf/rays.h"
 
@@ -36,11 +39,38 @@ class RayMarcher {
   float tFar() const { return t_far_; }
 
  private:
-  // Distance along the ray from p to where it leaves its block of 2^shift cells at cascade mip.
-  float distanceToNextCell(const Eigen::Vector3f& p, int mip, int shift = 0) const;
+  // Distance along the ray from the point at cell coordinates u (cascade mip) to where it leaves
+  // its block of 2^shift cells: the exit boundary along an axis is the next block face in the
+  // direction of travel, floor(u / B) + 1 going up, floor(u / B) going down (0 away when exactly on
+  // a face). No divisions: cell_len_ holds 1 / (dir * kRes) and the powers of two are exact.
+  float distanceToNextCell(const float u[3], int mip, int shift) const {
+    const float B = float(1u << shift), invB = OccupancyGrid::invCascadeScale(shift);
+    const float scale = float(1u << mip);
+    float best = INFINITY;
+    for (int a = 0; a < 3; ++a) {
+      if (ray_.dir[a] == 0.f) continue;
+      const float ub = floorSmall(u[a] * invB);
+      const float boundary = (ray_.dir[a] > 0 ? ub + 1.f : ub) * B;
+      best = std::min(best, (boundary - u[a]) * (cell_len_[a] * scale));  // back to NeRF length
+    }
+    return std::max(best, 0.f);
+  }
+
+  // floor and ceil for |x| < 2^31 through integer conversion (the baseline x86-64 target has no
+  // rounding instruction: std::floor/ceil compile to a longer sequence on the march's latency chain).
+  static float floorSmall(float x) {
+    const float i = float(int32_t(x));
+    return x < i ? i - 1.f : i;
+  }
+  static int64_t ceilSmall(float x) {
+    const int32_t i = int32_t(x);
+    return int64_t(i) + (float(i) < x ? 1 : 0);
+  }
+
+  static constexpr float kInvMinStep = 1024.f / 1.7320508f;
 
   Ray ray_;
-  Eigen::Vector3f inv_dir_;
+  Eigen::Vector3f inv_dir_, cell_len_;
   const OccupancyGrid* grid_;
   MarchParams params_;
   float t0_ = 0, t_ = 0, t_far_ = 0;

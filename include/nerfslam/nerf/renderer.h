@@ -2,7 +2,7 @@
 // Rendering a NeRF model from any pinhole camera and pose (multi-threaded).
 //
 // Rays are processed in 32x16-pixel blocks, wavefront style as instant-ngp: every live ray of a
-// block marches a chunk of samples (8, 16, then 32 per round) through the occupancy grid, the
+// block marches a chunk of samples (8, then 4 per round) through the occupancy grid, the
 // density network is queried on all of them at once, and each ray composites front to back until
 // its transmittance drops below 1e-4 or it leaves the scene box. The colour network then runs only
 // on the samples whose compositing weight matters: samples lighter than 1e-4 are left out while
