@@ -28,6 +28,7 @@ ROS_PKGS=(
   libstd-msgs-dev libdiagnostic-updater-dev python3-rostest librostest-dev python3-roslaunch rviz xvfb
   python3-gencpp python3-genmsg python3-genpy
   python3-rostopic python3-sensor-msgs python3-geometry-msgs python3-nav-msgs python3-visualization-msgs python3-tf2-msgs
+  rosbash
 )
 
 pkgs=("${BUILD_PKGS[@]}")

@@ -57,8 +57,14 @@ MapToOdomPublisher::~MapToOdomPublisher() {
 }
 
 void MapToOdomPublisher::push(const ros::Time& stamp, const SE3& T_map_cam) {
+  enqueue(Item{stamp, T_map_cam, map_generation_, false});
+}
+
+void MapToOdomPublisher::pushLost(const ros::Time& stamp) { enqueue(Item{stamp, SE3(), map_generation_, true}); }
+
+void MapToOdomPublisher::enqueue(Item item) {
   const uint64_t before = queue_.dropped();
-  queue_.tryPush(Item{stamp, T_map_cam});
+  queue_.tryPush(std::move(item));
   if (queue_.dropped() > before)
     ROS_WARN_THROTTLE(5.0,
                       "map -> odom: images waiting for their tf lookups dropped (each waits up to ~tf_timeout = %g s "
@@ -97,6 +103,10 @@ void MapToOdomPublisher::run() {
   const std::string odom_base = p_.odom_frame + " -> " + p_.base_frame;
   const std::string base_cam = p_.base_frame + " -> " + camera_frame_;
   while (auto item = queue_.pop()) {
+    if (item->lost) {
+      repeat(*item);
+      continue;
+    }
     const ros::Time deadline = ros::Time::now() + ros::Duration(p_.tf_timeout);
     SE3 T_odom_base, T_base_cam;
     std::string error;
@@ -111,9 +121,21 @@ void MapToOdomPublisher::run() {
     const SE3 T_map_odom = item->T_map_cam * T_base_cam.inverse() * T_odom_base.inverse();
     broadcaster_.sendTransform(rosbridge::toTransformStamped(T_map_odom, map_frame_, p_.odom_frame, item->stamp));
     ++published_;
+    have_last_ = true;
+    last_T_map_odom_ = T_map_odom;
+    last_generation_ = item->map_generation;
     std::lock_guard<std::mutex> lock(mutex_);
     last_error_.clear();
   }
+}
+
+void MapToOdomPublisher::repeat(const Item& item) {
+  if (!have_last_ || last_generation_ != item.map_generation) {
+    ++lost_without_correction_;  // nothing published for this map yet
+    return;
+  }
+  broadcaster_.sendTransform(rosbridge::toTransformStamped(last_T_map_odom_, map_frame_, p_.odom_frame, item.stamp));
+  ++repeated_;
 }
 
 void MapToOdomPublisher::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const {
@@ -127,13 +149,16 @@ void MapToOdomPublisher::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s
   s.add("map -> odom skipped (no " + p_.odom_frame + " -> " + p_.base_frame + ")", static_cast<uint64_t>(no_odom_));
   s.add("map -> odom skipped (no " + p_.base_frame + " -> " + camera_frame_ + ")", static_cast<uint64_t>(no_mount_));
   s.add("map -> odom skipped (lookups behind)", static_cast<uint64_t>(queue_.dropped()));
+  s.add("map -> odom repeated (tracking lost)", static_cast<uint64_t>(repeated_));
+  s.add("map -> odom not repeated (lost, none for this map)", static_cast<uint64_t>(lost_without_correction_));
   s.add("map -> odom last error", last.empty() ? "none" : last);
 }
 
 std::string MapToOdomPublisher::summary() const {
   return "map -> odom " + std::to_string(published_) + " published, " + std::to_string(no_odom_) + " without " +
          p_.odom_frame + " -> " + p_.base_frame + ", " + std::to_string(no_mount_) + " without " + p_.base_frame +
-         " -> " + camera_frame_ + ", " + std::to_string(queue_.dropped()) + " dropped (lookups behind)";
+         " -> " + camera_frame_ + ", " + std::to_string(queue_.dropped()) + " dropped (lookups behind), " +
+         std::to_string(repeated_) + " repeated while lost";
 }
 
 }  // namespace nerfslam::rosnode

@@ -28,7 +28,8 @@
 // Published (private namespace unless noted):
 //   tf                 ~map_frame -> ~camera_frame (T_map_camera at tracking time), per tracked frame;
 //                      with ~publish_map_to_odom instead ~map_frame -> ~odom_frame, the REP-105
-//                      correction T_map_cam * T_base_cam^-1 * T_odom_base^-1 (map_to_odom.h)
+//                      correction T_map_cam * T_base_cam^-1 * T_odom_base^-1 (map_to_odom.h), and
+//                      while tracking is lost the last correction again at each image's stamp
 //   ~pose              geometry_msgs/PoseStamped, the same pose
 //   ~path              nav_msgs/Path, every tracked frame resolved through its reference keyframe's
 //                      bundle-adjusted pose (SlamSystem::trajectory()), frame ~map_frame
@@ -537,6 +538,7 @@ class NerfslamNode {
         system_->finish(false);
         system_.reset();  // destroyed here, or by the last reader still holding it
         ++resets_;
+        if (map_to_odom_) map_to_odom_->forget();  // its corrections were for the discarded map
       }
       if (!system_) {
         nerfslam::SystemOptions opt;
@@ -662,6 +664,13 @@ class NerfslamNode {
       ps.header.frame_id = mapFrame();
       ps.pose = nerfslam::rosbridge::toPose(rec.T_world_cam);
       pose_pub_.publish(ps);
+    } else if (map_to_odom_) {
+      // REP-105: while lost, map -> odom stays available (the last correction, at this stamp); while
+      // initialising there is no map it belongs to.
+      if (rec.state == nerfslam::TrackingState::kLost)
+        map_to_odom_->pushLost(stamp);
+      else if (rec.state == nerfslam::TrackingState::kNotInitialized)
+        map_to_odom_->forget();
     }
     if (system_->initialized()) {
       nav_msgs::Path path;

@@ -1,11 +1,15 @@
 // gtest node started by test/ros/nerfslam_node_odom.test (rostest): nerfslam_node with
-// ~publish_map_to_odom, the REP-105 map -> odom correction. The test renders a synthetic room
+// ~publish_map_to_odom, the REP-105 map -> odom correction; and by tracking_node_odom.test: the same
+// checks on tracking_node (the off-board split's robot side, config/launch/offboard_mapping.launch),
+// ~node_type telling which executable the invalid-parameter cases run. The test renders a synthetic room
 // (`nerfslam synth`, 320x240, no data needed), plays it with image_folder_publisher (dataset stamps)
 // and acts as the robot: a static base -> camera (the optical-frame rotation, pitched down 10 degrees,
 // and an offset) and, for each image, odom -> base at the image's stamp from the ground truth, with
 // an odom origin that is not the world's (the robot started 0.6 m away from it, turned 35 degrees:
-// odometry that drifted). Odometry is withheld until the node has tracked a few frames, as on a robot
-// whose odometry starts late. Checks:
+// odometry that drifted). Odometry is withheld for the first images (the node initialises and tracks
+// a few frames meanwhile), as on a robot whose odometry starts late. After the room, `lost_frames` black images (no
+// features: tracking is lost on each) follow at the same rate, the robot's odometry still moving 1 cm per frame.
+// Checks:
 //   1. nerfslam_node publishes no map -> camera (or anything but map -> odom) on tf;
 //   2. frames tracked before the odometry got no correction: counted in the diagnostics (every tracked
 //      frame is published, skipped or dropped), and a warning names the missing transform;
@@ -31,6 +35,10 @@
 //        ATE is; measured 7.6-15 % at most (the camera centres themselves 7.6-12 %: scale and rotation
 //        drift of monocular SLAM over 120 frames). The raw translation's spread is printed beside it:
 //        260-270 % of the path, what the scale alone does to an uncorrected comparison.
+//   5. while tracking is lost the node republishes its last correction, unchanged, at each image's
+//      stamp (REP-105: map -> odom stays available), so that map -> odom -> base -> camera at those
+//      stamps is that correction composed with the robot's odometry; every lost image gets one, and
+//      the diagnostics count them.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -46,11 +54,13 @@
 #include <geometry_msgs/PoseStamped.h>
 #include <ros/ros.h>
 #include <sensor_msgs/Image.h>
+#include <std_msgs/String.h>
 #include <tf2_msgs/TFMessage.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/static_transform_broadcaster.h>
 #include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "nerfslam/core/pose.h"
 #include "nerfslam/eval/trajectory_metrics.h"
@@ -75,6 +85,7 @@ double angleDeg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) { retu
 
 struct Observed {
   std::mutex mutex;
+  std::vector<std::string> states;   // ~tracking_state, in order
   std::map<double, SE3> poses;       // ~pose by stamp
   std::map<double, SE3> map_odom;    // the node's map -> odom by stamp
   std::vector<std::string> foreign;  // anything else the node put on tf
@@ -84,7 +95,7 @@ struct Observed {
 TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   ros::NodeHandle nh, pnh("~");
   std::string node, map_frame, odom_frame, base_frame, camera_frame;
-  int frames = 0, withhold_poses = 0;
+  int frames = 0, withhold_images = 0, lost_frames = 0;
   double rate = 0, max_chain_error = 0, max_rotation_deg = 0, max_origin_percent = 0;
   ASSERT_TRUE(pnh.getParam("node", node));
   ASSERT_TRUE(pnh.getParam("map_frame", map_frame));
@@ -93,7 +104,8 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   ASSERT_TRUE(pnh.getParam("camera_frame", camera_frame));
   ASSERT_TRUE(pnh.getParam("frames", frames));
   ASSERT_TRUE(pnh.getParam("rate", rate));
-  ASSERT_TRUE(pnh.getParam("withhold_odom_poses", withhold_poses));
+  ASSERT_TRUE(pnh.getParam("withhold_odom_images", withhold_images));
+  ASSERT_TRUE(pnh.getParam("lost_frames", lost_frames));
   ASSERT_TRUE(pnh.getParam("max_chain_error", max_chain_error));
   ASSERT_TRUE(pnh.getParam("max_rotation_deg", max_rotation_deg));
   ASSERT_TRUE(pnh.getParam("max_origin_percent", max_origin_percent));
@@ -106,11 +118,38 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   const auto& ds = room.dataset;
   ASSERT_EQ(ds->size(), size_t(frames));
   const nerfslam::Trajectory& gt = room.ground_truth;
-  auto gtAt = [&](double t) -> const SE3* {
-    const auto it = std::lower_bound(gt.begin(), gt.end(), t - 1e-6,
+  // The camera's true pose at a stamp of `traj` (null when it has none).
+  auto poseAt = [](const nerfslam::Trajectory& traj, double t) -> const SE3* {
+    const auto it = std::lower_bound(traj.begin(), traj.end(), t - 1e-6,
                                      [](const nerfslam::TrajectoryEntry& e, double x) { return e.timestamp < x; });
-    return it != gt.end() && std::abs(it->timestamp - t) < 1e-6 ? &it->pose : nullptr;
+    return it != traj.end() && std::abs(it->timestamp - t) < 1e-6 ? &it->pose : nullptr;
   };
+  auto gtAt = [&](double t) { return poseAt(gt, t); };
+
+  // After the room: black images (a folder dataset with the room's camera), stamped on at the room's
+  // rate. The robot's camera meanwhile moves on 1 cm per frame along its optical axis (`robot`: the
+  // ground truth, then those poses, what its odometry follows).
+  const fs::path dark = tmp.path() / "dark";
+  fs::create_directories(dark);
+  fs::copy_file(seq / "camera.yaml", dark / "camera.yaml");
+  nerfslam::Trajectory robot = gt;
+  std::vector<double> lost_stamps;
+  {
+    const double dt = gt[1].timestamp - gt[0].timestamp;
+    std::FILE* times = std::fopen((dark / "times.txt").c_str(), "w");
+    ASSERT_NE(times, nullptr);
+    for (int k = 1; k <= lost_frames; ++k) {
+      const double t = gt.back().timestamp + k * dt;
+      lost_stamps.push_back(t);
+      robot.push_back({t, gt.back().pose * SE3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 0.01 * k))});
+      std::fprintf(times, "%.9f\n", t);
+      char name[32];
+      std::snprintf(name, sizeof name, "dark%03d.png", k);
+      ASSERT_TRUE(
+          cv::imwrite((dark / name).string(), cv::Mat::zeros(ds->camera().height, ds->camera().width, CV_8UC1)));
+    }
+    std::fclose(times);
+  }
 
   // The robot (world z up). The camera on the base: optical axes (z forward = base x, x right =
   // -base y, y down = -base z), pitched down 10 degrees, 12 cm ahead, 4 cm right, 25 cm up.
@@ -124,25 +163,31 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   const SE3 T_odom_world = T_world_odom.inverse();
 
   Observed o;
-  DiagnosticsValues diag(nh, "nerfslam_node");
+  DiagnosticsValues diag(nh, node.substr(node.rfind('/') + 1));
   const RosoutLog rosout(nh, node);
   tf2_ros::Buffer buffer(ros::Duration(600.0));
   tf2_ros::TransformListener listener(buffer, nh);
   tf2_ros::StaticTransformBroadcaster static_tf;
   tf2_ros::TransformBroadcaster odom_tf;
   static_tf.sendTransform(nerfslam::rosbridge::toTransformStamped(T_base_cam, base_frame, camera_frame, ros::Time(0)));
-  std::atomic<size_t> pose_count{0}, odom_sent{0}, odom_withheld{0};
+  std::atomic<size_t> images_seen{0}, odom_sent{0}, odom_withheld{0};
   ros::Subscriber pose_sub =
       nh.subscribe<geometry_msgs::PoseStamped>(node + "/pose", 1000, [&](const geometry_msgs::PoseStampedConstPtr& m) {
         std::lock_guard<std::mutex> lock(o.mutex);
         o.poses[m->header.stamp.toSec()] = nerfslam::rosbridge::fromPose(m->pose);
-        ++pose_count;
       });
-  // The robot's odometry at each image's stamp, once the node has tracked `withhold_poses` frames.
+  ros::Subscriber state_sub =
+      nh.subscribe<std_msgs::String>(node + "/tracking_state", 100, [&](const std_msgs::StringConstPtr& m) {
+        std::lock_guard<std::mutex> lock(o.mutex);
+        o.states.push_back(m->data);
+      });
+  // The robot's odometry at each image's stamp, after the first `withhold_images` images (counted as
+  // they arrive, not by the node's progress: which images have odometry does not depend on how far
+  // behind the camera the node is; it initialises within them and tracks some without odometry).
   ros::Subscriber image_sub = nh.subscribe<sensor_msgs::Image>("image", 1000, [&](const sensor_msgs::ImageConstPtr& m) {
-    const SE3* T_world_cam = gtAt(m->header.stamp.toSec());
+    const SE3* T_world_cam = poseAt(robot, m->header.stamp.toSec());
     if (!T_world_cam) return;
-    if (pose_count < size_t(withhold_poses)) {
+    if (images_seen++ < size_t(withhold_images)) {
       ++odom_withheld;
       return;
     }
@@ -188,6 +233,31 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   };
   EXPECT_TRUE(waitFor(20.0, [&] { return handled() == diag.num("frames tracked"); }))
       << handled() << " corrections handled for " << diag.num("frames tracked") << " tracked frames";
+  const double room_tracked = diag.num("frames tracked");
+
+  // The black images: tracking lost on each.
+  const std::string k_repeated = "map -> odom repeated (tracking lost)",
+                    k_not_repeated = "map -> odom not repeated (lost, none for this map)";
+  if (lost_frames > 0) {
+    const double received_before = diag.num("frames received");
+    const double repeats_before = diag.num(k_repeated) + diag.num(k_not_repeated);
+    ChildProcess dark_publisher(
+        {NERFSLAM_PUBLISHER_PATH, "__name:=odom_test_dark_camera", "_dataset:=folder:" + dark.string(),
+         "_use_dataset_stamps:=true", "_rate:=" + std::to_string(rate), "_frame_id:=" + camera_frame,
+         "_wait_for_subscribers:=true", "_min_subscribers:=2", "_exit_when_done:=true"},
+        log);
+    ASSERT_TRUE(waitFor(60.0, [&] { return !dark_publisher.running(); })) << nerfslam::rostest_util::readText(log);
+    EXPECT_TRUE(waitFor(60.0,
+                        [&] {
+                          return diag.num("frames received") >= received_before + lost_frames &&
+                                 diag.accounted() == diag.num("frames received") &&
+                                 diag.num(k_repeated) + diag.num(k_not_repeated) >= repeats_before + lost_frames;
+                        }))
+        << "received " << diag.num("frames received") << " (" << received_before
+        << " before the black images), accounted for " << diag.accounted() << ", lost images handled "
+        << diag.num(k_repeated) + diag.num(k_not_repeated);
+    EXPECT_EQ(diag.num("frames tracked"), room_tracked) << "a black image was tracked";
+  }
   ros::WallDuration(1.0).sleep();  // the last tf and ~pose messages
 
   Observed snap;
@@ -197,13 +267,18 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
     snap.map_odom = o.map_odom;
     snap.foreign = o.foreign;
     snap.map_camera = o.map_camera;
+    snap.states = o.states;
   }
+  // The node's corrections at tracked images (with a ~pose), and the others (repeated while lost).
+  std::map<double, SE3> corrections, repeats;
+  for (const auto& [t, T] : snap.map_odom) (snap.poses.count(t) ? corrections : repeats)[t] = T;
   std::printf(
       "frames: %g received, %g tracked; odometry withheld for %zu images, sent for %zu; map -> odom: %g published "
-      "(%zu seen on tf), %g without odometry, %g without the camera mount, %g dropped; ~pose %zu\n",
+      "(%zu seen on tf), %g without odometry, %g without the camera mount, %g dropped, %g repeated while lost (%zu "
+      "seen on tf), %g lost images without a correction to repeat; ~pose %zu\n",
       diag.num("frames received"), diag.num("frames tracked"), size_t(odom_withheld), size_t(odom_sent),
-      diag.num(k_published), snap.map_odom.size(), diag.num(k_no_odom), diag.num(k_no_mount), diag.num(k_behind),
-      snap.poses.size());
+      diag.num(k_published), corrections.size(), diag.num(k_no_odom), diag.num(k_no_mount), diag.num(k_behind),
+      diag.num(k_repeated), repeats.size(), diag.num(k_not_repeated), snap.poses.size());
 
   // 1. No map -> camera: the camera's parent is the robot's base.
   EXPECT_EQ(snap.map_camera, 0u) << map_frame << " -> " << camera_frame << " was published";
@@ -215,16 +290,15 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   const std::string warning = rosout.find({"map -> odom not published", odom_frame + " -> " + base_frame});
   EXPECT_FALSE(warning.empty()) << "no warning naming " << odom_frame << " -> " << base_frame;
   std::printf("node said: %s\n", warning.c_str());
-  EXPECT_EQ(double(snap.map_odom.size()), diag.num(k_published));
-  EXPECT_GE(double(snap.map_odom.size()), 0.5 * frames);
+  EXPECT_EQ(double(corrections.size()), diag.num(k_published));
+  EXPECT_GE(double(corrections.size()), 0.5 * frames);
   EXPECT_GE(double(snap.poses.size()), 0.8 * frames);
 
   // 3. map -> odom -> base -> camera over tf is ~pose.
   double max_chain_pos = 0, max_chain_rot = 0;
   size_t chained = 0;
-  for (const auto& [t, T_map_odom] : snap.map_odom) {
+  for (const auto& [t, T_map_odom] : corrections) {
     const auto pose = snap.poses.find(t);
-    ASSERT_NE(pose, snap.poses.end()) << "map -> odom at " << t << " without a ~pose";
     SE3 T_chain;
     try {
       T_chain =
@@ -241,7 +315,7 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
       "tf chain %s -> %s -> %s -> %s against ~pose at %zu stamps: largest difference %.3g map units, %.3g deg\n",
       map_frame.c_str(), odom_frame.c_str(), base_frame.c_str(), camera_frame.c_str(), chained, max_chain_pos,
       max_chain_rot);
-  EXPECT_EQ(chained, snap.map_odom.size());
+  EXPECT_EQ(chained, corrections.size());
   EXPECT_LE(max_chain_pos, max_chain_error);
   EXPECT_LE(max_chain_rot, max_chain_error * 180 / M_PI);
 
@@ -285,8 +359,8 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   const Eigen::Vector3d origin_true = s * R_map_world * T_world_odom.translation() + t_map_world;
   const double path_map = ate.ref_path_length * s;
   double max_rot = 0, max_origin = 0, spread_raw = 0;
-  const Eigen::Vector3d raw0 = snap.map_odom.begin()->second.translation();
-  for (const auto& [t, T_map_odom] : snap.map_odom) {
+  const Eigen::Vector3d raw0 = corrections.begin()->second.translation();
+  for (const auto& [t, T_map_odom] : corrections) {
     const SE3 T_cam_odom = gtAt(t)->inverse() * T_world_odom;  // metric, what the robot's tf says
     const SE3& T_map_cam = snap.poses.at(t);
     const Eigen::Vector3d origin =
@@ -305,11 +379,57 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
       origin_percent, spread_raw, 100 * spread_raw / path_map);
   EXPECT_LE(max_rot, max_rotation_deg);
   EXPECT_LE(origin_percent, max_origin_percent);
+
+  // 5. While lost: the last correction again at each image's stamp, and through it and the robot's
+  // odometry the camera on tf (the lookups at those stamps succeed).
+  EXPECT_NE(std::find(snap.states.begin(), snap.states.end(), "lost"), snap.states.end())
+      << "~tracking_state never said lost";
+  EXPECT_EQ(double(repeats.size()), diag.num(k_repeated));
+  size_t dark_repeated = 0;
+  for (double t : lost_stamps) {  // the stamps as published: to the nanosecond
+    const auto it = repeats.lower_bound(t - 1e-6);
+    if (it != repeats.end() && std::abs(it->first - t) < 1e-6) ++dark_repeated;
+  }
+  EXPECT_EQ(dark_repeated, size_t(lost_frames)) << "black images with map -> odom at their stamp";
+  double max_repeat_diff = 0, max_lost_chain = 0;
+  size_t lost_chained = 0;
+  for (const auto& [t, T_map_odom] : repeats) {
+    auto before = snap.map_odom.find(t);
+    ASSERT_NE(before, snap.map_odom.begin()) << "map -> odom repeated at " << t << " before any correction";
+    --before;  // the correction (or repeat) before it
+    // The same doubles (one SE3 sent again): compared exactly.
+    max_repeat_diff =
+        std::max({max_repeat_diff, (before->second.translation() - T_map_odom.translation()).cwiseAbs().maxCoeff(),
+                  (before->second.rotation().coeffs() - T_map_odom.rotation().coeffs()).cwiseAbs().maxCoeff()});
+    const SE3* T_world_cam = poseAt(robot, t);
+    ASSERT_NE(T_world_cam, nullptr) << "map -> odom repeated at " << t << ", not an image's stamp";
+    const SE3 T_map_cam_expected = T_map_odom * (T_odom_world * *T_world_cam * T_base_cam.inverse()) * T_base_cam;
+    try {
+      const SE3 T_chain =
+          nerfslam::rosbridge::fromTransform(buffer.lookupTransform(map_frame, camera_frame, ros::Time(t)).transform);
+      max_lost_chain = std::max({max_lost_chain, (T_chain.translation() - T_map_cam_expected.translation()).norm(),
+                                 T_chain.rotation().angularDistance(T_map_cam_expected.rotation())});
+      ++lost_chained;
+    } catch (const tf2::TransformException& e) {
+      ADD_FAILURE() << "tf " << map_frame << " -> " << camera_frame << " at " << t << " (tracking lost): " << e.what();
+    }
+  }
+  std::printf(
+      "tracking lost: %zu of %d black images got map -> odom; repeated corrections differ from the one before by at "
+      "most %.3g; tf chain at %zu lost stamps against the last correction and the odometry: largest difference %.3g\n",
+      dark_repeated, lost_frames, max_repeat_diff, lost_chained, max_lost_chain);
+  EXPECT_EQ(max_repeat_diff, 0.0) << "a repeated correction is not the last one";
+  EXPECT_EQ(lost_chained, repeats.size());
+  EXPECT_LE(max_lost_chain, max_chain_error);
 }
 
-// Runs the node binary against this test's master.
+// Runs the node binary (~node_type: nerfslam_node or tracking_node) against this test's master.
 nerfslam::test::CommandResult runNode(const std::string& args) {
-  return nerfslam::test::runCommand("timeout 60 '" NERFSLAM_NODE_PATH "' _publish_map_to_odom:=true " + args);
+  std::string type;
+  ros::NodeHandle("~").param<std::string>("node_type", type, "nerfslam_node");
+  EXPECT_TRUE(type == "nerfslam_node" || type == "tracking_node") << "~node_type " << type;
+  const std::string path = type == "tracking_node" ? NERFSLAM_TRACKING_NODE_PATH : NERFSLAM_NODE_PATH;
+  return nerfslam::test::runCommand("timeout 60 '" + path + "' _publish_map_to_odom:=true " + args);
 }
 
 TEST(NerfslamNodeOdom, InvalidFramesExitNonZeroNamingTheParameter) {

@@ -13,6 +13,12 @@
 // stamp outside what tf holds, no camera mount) gets no correction: counted, a throttled warning
 // names the missing transform, diagnostics report it.
 //
+// While tracking is lost (REP-105: map -> odom stays available, odometry carries the robot meanwhile)
+// each image the tracking worker processes republishes the last correction published for the current
+// map, unchanged, stamped with that image's stamp (no lookups; counted). Not while initialising
+// (after a reset, or the system's own reinitialisation, the last correction belongs to a discarded
+// map: forget()), and not before a correction was published for this map.
+//
 // Monocular SLAM: the map's scale is arbitrary, the odometry's metric. The correction places the
 // odom frame so that map -> odom -> base -> camera is exactly the tracked camera pose; it is
 // constant over time only when the map is metric. Otherwise its rotation is still constant (the
@@ -55,8 +61,13 @@ class MapToOdomPublisher {
   MapToOdomPublisher(const MapToOdomPublisher&) = delete;
   MapToOdomPublisher& operator=(const MapToOdomPublisher&) = delete;
 
-  // From the tracking worker: never blocks.
+  // From the tracking worker, in the order of the images; none blocks.
+  // A tracked image: its correction, after the lookups.
   void push(const ros::Time& stamp, const SE3& T_map_cam);
+  // An image on which tracking is lost: the last correction of the current map again, at `stamp`.
+  void pushLost(const ros::Time& stamp);
+  // The map was discarded (a reset, reinitialising): the last correction is not repeated any more.
+  void forget() { ++map_generation_; }
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const;
   std::string summary() const;  // for the node's shutdown line
@@ -65,7 +76,11 @@ class MapToOdomPublisher {
   struct Item {
     ros::Time stamp;
     SE3 T_map_cam;
+    uint64_t map_generation = 0;  // forget() calls before it was pushed
+    bool lost = false;            // pushLost(): repeat the last correction
   };
+  void enqueue(Item item);
+  void repeat(const Item& item);
   void run();
   // T_target_source at `stamp`, waiting until `deadline` (ROS time); false with tf's message.
   bool lookup(const std::string& target, const std::string& source, const ros::Time& stamp, const ros::Time& deadline,
@@ -80,7 +95,13 @@ class MapToOdomPublisher {
   BoundedQueue<Item> queue_;
   std::thread thread_;
 
-  std::atomic<uint64_t> published_{0}, no_odom_{0}, no_mount_{0};
+  std::atomic<uint64_t> map_generation_{0};  // the tracking worker's (forget())
+  // The lookup thread's last correction and the map it belongs to (repeated while lost).
+  bool have_last_ = false;
+  SE3 last_T_map_odom_;
+  uint64_t last_generation_ = 0;
+
+  std::atomic<uint64_t> published_{0}, no_odom_{0}, no_mount_{0}, repeated_{0}, lost_without_correction_{0};
   mutable std::mutex mutex_;
   std::string last_error_;  // of the last frame, "" when it was published
 };
