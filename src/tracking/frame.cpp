@@ -149,13 +149,9 @@ std::vector<cv::KeyPoint> detectLevel(const cv::Mat& img, int target, const Feat
 
 }  // namespace
 
-// The project builds for baseline x86-64, where __builtin_popcountll is a library call; a clone
-// with the POPCNT instruction is picked at load time on CPUs that have it (every x86-64 CPU since
-// 2008), the default clone elsewhere.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
-__attribute__((target_clones("popcnt", "default")))
-#endif
-int descriptorDistance(const uint8_t* a, const uint8_t* b) {
+namespace {
+
+inline int hamming256(const uint8_t* a, const uint8_t* b) {
   int d = 0;
   for (int i = 0; i < 32; i += 8) {
     uint64_t x, y;
@@ -164,6 +160,27 @@ int descriptorDistance(const uint8_t* a, const uint8_t* b) {
     d += __builtin_popcountll(x ^ y);
   }
   return d;
+}
+
+// The project builds for baseline x86-64, where __builtin_popcountll is a library call: a copy
+// compiled with the POPCNT instruction is used on CPUs that have it (every x86-64 CPU since 2008).
+// A plain runtime check, not an ifunc (target_clones): ifunc resolvers run before the sanitizer
+// runtimes start and crash TSan/ASan builds.
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+__attribute__((target("popcnt"))) int hamming256Popcnt(const uint8_t* a, const uint8_t* b) { return hamming256(a, b); }
+const bool kHasPopcnt = [] {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("popcnt") != 0;
+}();
+#endif
+
+}  // namespace
+
+int descriptorDistance(const uint8_t* a, const uint8_t* b) {
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+  if (kHasPopcnt) return hamming256Popcnt(a, b);
+#endif
+  return hamming256(a, b);
 }
 
 std::vector<int> Frame::featuresInArea(const Eigen::Vector2d& uv, double radius, int min_level, int max_level) const {
