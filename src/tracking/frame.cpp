@@ -117,8 +117,8 @@ std::vector<cv::KeyPoint> detectLevel(const cv::Mat& img, int target, const Feat
   for (int sweep = 0; sweep < 2 && remaining > 0; ++sweep) {
     int open = 0;
     for (size_t c = 0; c < cells.size(); ++c) {
-      // Sweep 0: a cell with exactly `quota` strong corners needs its weak ones too (they decide
-      // whether it stays open for the second sweep).
+      // A cell with no more strong corners than it may take needs its weak ones first (in sweep 0
+      // they also decide, for a cell with exactly `quota` strong ones, whether it stays open).
       needLow(c, static_cast<size_t>(quota));
       auto& v = cells[c];
       if (done[c] || v.empty()) continue;

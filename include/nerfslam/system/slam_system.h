@@ -39,12 +39,11 @@ inline TrackingOptions systemTrackingDefaults() {
 struct SystemOptions {
   TrackingOptions tracking = systemTrackingDefaults();
   MappingOptions mapping;
-  int local_map_keyframes = 10;  // covisible keyframes whose points tracking matches against
-  int keyframe_queue = 3;        // mapping input queue (keyframes beyond it are dropped)
-  int relocalization_candidates = 5;
+  int local_map_keyframes = 10;          // covisible keyframes whose points tracking matches against
+  int keyframe_queue = 3;                // mapping input queue (keyframes beyond it are dropped)
+  int relocalization_candidates = 5;     // most recent keyframes tried when lost
   bool relocalize_when_weak = true;      // also relocalise frames tracked with fewer than min_inliers_good inliers
-  double relocalize_inlier_drop = 0.25;  // ... or with fewer than this fraction of the previous frame's inliers     //
-                                         // most recent keyframes tried when lost
+  double relocalize_inlier_drop = 0.25;  // ... or with fewer than this fraction of the previous frame's inliers
   int min_initial_points = 50;           // map points required after initialisation + BA
   int reset_if_lost_with_keyframes = 3;  // lost with at most this many keyframes: reinitialise
   int frame_queue = 2;                   // frames between the reader and the tracking thread
