@@ -28,9 +28,11 @@
 //   ~gt_child_frame        string  child frame of the ground-truth camera pose (default camera_ground_truth)
 //   ~wait_for_subscribers  bool    hold the first frame until image and camera_info have a
 //                                  subscriber (for tests and recording)                       (default false)
-//   ~min_subscribers       int     with ~wait_for_subscribers: that many subscribers (several
-//                                  nodes fed the same frames), >= 1                          (default 1)
-//   ~exit_when_done        bool    exit after the last frame instead of idling                (default false)
+//   ~min_subscribers       int     with ~wait_for_subscribers: that many image subscribers
+//                                  (several nodes fed the same frames), and every camera_info
+//                                  subscriber the master lists connected, >= 1              (default 1)
+//   ~exit_when_done        bool    exit after the last frame (and 1 s for it to be sent)
+//                                  instead of idling                                          (default false)
 // A frame whose image cannot be decoded is reported (ROS_ERROR naming the file) and skipped.
 // A restarted master is detected and the topics registered with it again (master_watch.h).
 #include <algorithm>
@@ -43,6 +45,7 @@
 #include <image_transport/image_transport.h>
 #include <nav_msgs/Path.h>
 #include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
 #include <tf2_ros/transform_broadcaster.h>
 
 #include "nerfslam/core/error.h"
@@ -51,6 +54,25 @@
 #include "nerfslam_ros/master_watch.h"
 
 namespace {
+
+// After the last frame with ~exit_when_done: time for roscpp to send what is queued.
+constexpr double kExitLingerSeconds = 1.0;
+
+// How many subscribers the master lists for `topic` (0 when the master cannot be asked).
+uint32_t registeredSubscribers(const std::string& topic) {
+  XmlRpc::XmlRpcValue args, result, payload;
+  args[0] = ros::this_node::getName();
+  if (!ros::master::execute("getSystemState", args, result, payload, false) ||
+      payload.getType() != XmlRpc::XmlRpcValue::TypeArray || payload.size() < 2)
+    return 0;
+  XmlRpc::XmlRpcValue& subs = payload[1];
+  for (int i = 0; i < subs.size(); ++i) {
+    if (subs[i].getType() != XmlRpc::XmlRpcValue::TypeArray || subs[i].size() < 2) continue;
+    if (subs[i][0].getType() == XmlRpc::XmlRpcValue::TypeString && std::string(subs[i][0]) == topic)
+      return static_cast<uint32_t>(subs[i][1].size());
+  }
+  return 0;
+}
 
 struct Params {
   std::string dataset;
@@ -192,7 +214,10 @@ int run(int argc, char** argv) {
     ROS_WARN("~publish_ground_truth is set but the dataset has no ground truth: nothing will be published on tf");
 
   image_transport::ImageTransport it(nh);
-  image_transport::CameraPublisher cam_pub = it.advertiseCamera("image", 10);
+  // The image and its camera_info on separate publishers (as image_transport's CameraPublisher
+  // does) so that ~wait_for_subscribers can wait for each topic's connections.
+  image_transport::Publisher image_pub = it.advertise("image", 10);
+  ros::Publisher info_pub = nh.advertise<sensor_msgs::CameraInfo>("camera_info", 10);
   ros::Publisher path_pub;
   std::unique_ptr<tf2_ros::TransformBroadcaster> tf_pub;
   nav_msgs::Path gt_path;
@@ -205,13 +230,16 @@ int run(int argc, char** argv) {
   const nerfslam::rosnode::MasterWatch master_watch;
 
   if (p.wait_for_subscribers) {
-    ROS_INFO("waiting for %d subscriber(s) on %s and %s", p.min_subscribers, cam_pub.getTopic().c_str(),
-             cam_pub.getInfoTopic().c_str());
-    // getNumSubscribers() is the larger of the image and camera_info counts: wait for the
-    // connections, then give the other topic's (same subscribers) time to complete.
-    while (ros::ok() && cam_pub.getNumSubscribers() < static_cast<uint32_t>(p.min_subscribers))
+    ROS_INFO("waiting for %d subscriber(s) on %s and %s", p.min_subscribers, image_pub.getTopic().c_str(),
+             info_pub.getTopic().c_str());
+    // The image's subscribers connected, and every subscriber the master lists for camera_info:
+    // a subscriber that pairs the two (camera subscribers do) would otherwise miss the first frames
+    // when its camera_info connection completes after its image connection (on a loaded machine,
+    // seconds later). Subscribers of the image alone (viewers, tests) do not hold it back.
+    const auto min_subscribers = static_cast<uint32_t>(p.min_subscribers);
+    while (ros::ok() && (image_pub.getNumSubscribers() < min_subscribers ||
+                         info_pub.getNumSubscribers() < registeredSubscribers(info_pub.getTopic())))
       ros::WallDuration(0.02).sleep();
-    ros::WallDuration(0.5).sleep();
   }
 
   const nerfslam::ImageMode mode = p.color ? nerfslam::ImageMode::kColor : nerfslam::ImageMode::kGray;
@@ -251,7 +279,8 @@ int run(int argc, char** argv) {
       sensor_msgs::ImagePtr img = nerfslam::rosbridge::toImageMsg(frame.image, header);
       sensor_msgs::CameraInfoPtr info =
           boost::make_shared<sensor_msgs::CameraInfo>(nerfslam::rosbridge::toCameraInfo(camera, header));
-      cam_pub.publish(img, info);
+      image_pub.publish(img);
+      info_pub.publish(info);
       ++published;
 
       if (p.publish_ground_truth && frame.T_world_cam) {
@@ -286,6 +315,11 @@ int run(int argc, char** argv) {
   if (!p.exit_when_done && ros::ok()) {
     ROS_INFO("all frames published; idling until shutdown (set ~exit_when_done to exit)");
     ros::spin();
+  } else if (ros::ok()) {
+    // publish() only queues a message: roscpp's own thread writes it to each subscriber's socket.
+    // Exiting at once loses the last frames whenever that thread has not run yet (a loaded
+    // machine), and roscpp cannot say when its queues are empty: give it a second.
+    ros::WallDuration(kExitLingerSeconds).sleep();
   }
   return 0;
 }

@@ -294,10 +294,14 @@ class NerfslamNode {
     diag_timer_ =
         nh_.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) { updater_.force_update(); });
 
+    // roscpp's subscriber queue only fills while this thread's callbacks are starved (they just
+    // enqueue); at least ~queue_size deep, so that frames the node's own queue would keep are not
+    // dropped before it (what it drops is counted as seq gaps).
+    const uint32_t ros_queue = static_cast<uint32_t>(std::max(5, p_.queue_size));
     if (yaml_camera_) {
-      image_sub_ = it_.subscribe("image", 5, &NerfslamNode::onImage, this);
+      image_sub_ = it_.subscribe("image", ros_queue, &NerfslamNode::onImage, this);
     } else {
-      camera_sub_ = it_.subscribeCamera("image", 5, &NerfslamNode::onCamera, this);
+      camera_sub_ = it_.subscribeCamera("image", ros_queue, &NerfslamNode::onCamera, this);
     }
     wait_timer_ = nh_.createWallTimer(ros::WallDuration(2.0), [this](const ros::WallTimerEvent&) { checkInput(); });
     publishers_timer_ =

@@ -52,7 +52,7 @@ std::unique_ptr<Dataset> openMiddlebury(const fs::path& root, const DatasetOptio
   const auto lines = readDataLines(par);
   if (lines.empty()) fail("{}: empty file", par.string());
   const double count = parseNumber(lines[0].text, par, lines[0].number, "view count");
-  if (count != std::floor(count) || count < 1 || static_cast<size_t>(count) != lines.size() - 1)
+  if (count != std::floor(count) || count < 1 || count != static_cast<double>(lines.size() - 1))
     fail("{}:{}: the view count {} does not match the {} view lines that follow", par.string(), lines[0].number,
          lines[0].text, lines.size() - 1);
 

@@ -103,5 +103,17 @@ TEST(FuzzRegression, StrechaCameraWithOutOfRangeSizeInFirstFile) {
                      {"0000.jpg.camera", "width height"});
 }
 
+// UBSan (fuzz_dataset_middlebury, found by CI): a view count of 4.4e124 in templeR_par.txt was cast
+// to size_t (float-cast-overflow, reader_multiview.cpp) to compare it with the number of view lines.
+// It must be rejected as a view count that does not match the lines.
+TEST(FuzzRegression, MiddleburyViewCountOutOfRange) {
+  test::TempDir dir;
+  test::writeText(dir / "templeR_par.txt",
+                  "444444444444444444444444444444444444444444444444444444444444444444444444"
+                  "4444444444444444444444444444444444444444444444444444447\n"
+                  "templeR0001.png 1 0 0 0 1 0 0 0 1 1 0 0 0 1 0 0 0 1 0 0 0\n");
+  expectDatasetError("middlebury", dir.path(), {"templeR_par.txt", "view count"});
+}
+
 }  // namespace
 }  // namespace nerfslam

@@ -143,7 +143,12 @@ TEST(MasterRestart, NodesRegisterAgainAndTrackAfterTheMasterRestarts) {
   const double t_reregistered = (ros::WallTime::now() - t_restart).toSec();
   EXPECT_TRUE(waitFor(10.0, [&] { return registrationsOf("/master_camera").count("P /image") > 0; }))
       << "the publisher did not register again";
-  const std::string node_out = readText(node_log);
+  // The node logs its re-registration after the last registration reaches the master: wait for it.
+  std::string node_out;
+  waitFor(10.0, [&] {
+    node_out = readText(node_log);
+    return node_out.find("registered again") != std::string::npos;
+  });
   const size_t said = node_out.find("registered again");
   EXPECT_NE(said, std::string::npos) << "the node did not say it registered again";
   EXPECT_NE(node_out.find("is unreachable"), std::string::npos) << "the node did not say the master went away";

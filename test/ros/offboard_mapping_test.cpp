@@ -299,7 +299,12 @@ TEST(OffboardMapping, SplitNodesMatchTheSingleNodeAndTrainTheNerf) {
       "tracking_node %.4f %%, nerfslam_node %.4f %% of the %.3f m path\n",
       test.size(), ref.size(), common, max_diff, diff_percent, length, ate_t.ape_rmse_percent, ate_r.ape_rmse_percent,
       ate_t.ref_path_length);
-  EXPECT_EQ(test.size(), ref.size());
+  EXPECT_EQ(test.size(), ref.size()) << "frames received: tracking_node " << diagValue(o, tname, "frames received")
+                                     << ", nerfslam_node " << diagValue(o, rname, "frames received")
+                                     << "; lost before the node (seq gaps): tracking_node "
+                                     << diagValue(o, tname, "frames lost before the node (seq gaps)")
+                                     << ", nerfslam_node "
+                                     << diagValue(o, rname, "frames lost before the node (seq gaps)");
   EXPECT_GE(common, size_t(0.9 * std::min(test.size(), ref.size())));
   EXPECT_GE(test.size(), size_t(0.5 * frames));
   EXPECT_LE(diff_percent, max_difference_percent);
