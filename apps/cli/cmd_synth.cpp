@@ -71,6 +71,10 @@ nerfslam::cli::Registrar reg(
       sub.add_flag("--exposure", o.exposure_change, "Smooth exposure (gain) changes");
       sub.add_option("--textures", o.textures, "auto (photos when the shared data is found), procedural or photo")
           ->capture_default_str();
+      sub.add_option("--texture-filter", o.texture_filter,
+                     "mip-nearest (bilinear in the nearest mipmap level) or trilinear (1.4x the render CPU)")
+          ->check(CLI::IsMember({"mip-nearest", "trilinear"}))
+          ->capture_default_str();
       sub.add_option("--out", a->out, "Output folder")->required();
       return [a]() -> int {
         auto& o = a->opts;

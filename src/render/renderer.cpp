@@ -5,11 +5,14 @@
 #include <GL/glext.h>
 #include <GL/osmesa.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstdlib>
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include <spdlog/spdlog.h>
 #include <opencv2/imgproc.hpp>
@@ -33,6 +36,10 @@ void configureMesaOnce() {
       ::setenv("LP_NUM_THREADS", std::to_string(n).c_str(), 0);
     }
   });
+}
+
+GLint glMinFilter(TextureFilter filter) {
+  return filter == TextureFilter::kTrilinear ? GL_LINEAR_MIPMAP_LINEAR : GL_LINEAR_MIPMAP_NEAREST;
 }
 
 const char* kVertexShader = R"(#version 330 core
@@ -153,14 +160,17 @@ struct Renderer::Impl {
   GLuint fbo = 0, rb_color = 0, rb_depthz = 0, rb_zbuf = 0;
   int fb_w = 0, fb_h = 0;
   std::vector<GLuint> textures;
+  TextureFilter texture_filter = TextureFilter::kMipNearest;
   struct GpuMesh {
     GLuint vao = 0, vbo = 0, ebo = 0;
     GLenum mode = GL_TRIANGLES;
     GLsizei count = 0;
     bool indexed = false;
     int texture = -1;
+    Eigen::Vector3f lo = Eigen::Vector3f::Zero(), hi = Eigen::Vector3f::Zero();  // bounding box (world)
   };
   std::vector<GpuMesh> meshes;
+  std::vector<std::pair<float, size_t>> draw_order;  // scratch of render()
 
   Impl() {
     GLuint vs = compileShader(GL_VERTEX_SHADER, kVertexShader);
@@ -241,6 +251,25 @@ struct Renderer::Impl {
 Renderer::Renderer() : impl_(std::make_unique<Impl>()) {}
 Renderer::~Renderer() = default;
 
+const char* textureFilterName(TextureFilter filter) {
+  return filter == TextureFilter::kTrilinear ? "trilinear" : "mip-nearest";
+}
+
+TextureFilter parseTextureFilter(const std::string& name) {
+  if (name == "mip-nearest") return TextureFilter::kMipNearest;
+  if (name == "trilinear") return TextureFilter::kTrilinear;
+  fail("unknown texture filter '{}' (valid: mip-nearest, trilinear)", name);
+}
+
+void Renderer::setTextureFilter(TextureFilter filter) {
+  impl_->texture_filter = filter;
+  impl_->ctx.makeCurrent();
+  for (GLuint tex : impl_->textures) {
+    glBindTexture(GL_TEXTURE_2D, tex);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, glMinFilter(filter));
+  }
+}
+
 int Renderer::addTexture(const cv::Mat& image) {
   if (image.empty() || image.depth() != CV_8U || (image.channels() != 3 && image.channels() != 1))
     fail("Renderer::addTexture: need a non-empty 8-bit gray or BGR image");
@@ -253,7 +282,7 @@ int Renderer::addTexture(const cv::Mat& image) {
   glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
   glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, rgba.cols, rgba.rows, 0, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data);
   glGenerateMipmap(GL_TEXTURE_2D);
-  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, glMinFilter(impl_->texture_filter));
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_REPEAT);
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_REPEAT);
@@ -267,6 +296,14 @@ int Renderer::addMesh(const Mesh& mesh) {
   impl_->ctx.makeCurrent();
   Impl::GpuMesh g;
   g.texture = mesh.texture;
+  if (!mesh.vertices.empty()) {
+    g.lo = g.hi = Eigen::Vector3f(mesh.vertices[0].x, mesh.vertices[0].y, mesh.vertices[0].z);
+    for (const Vertex& v : mesh.vertices) {
+      const Eigen::Vector3f p(v.x, v.y, v.z);
+      g.lo = g.lo.cwiseMin(p);
+      g.hi = g.hi.cwiseMax(p);
+    }
+  }
   g.mode = mesh.primitive == Primitive::kTriangles ? GL_TRIANGLES
            : mesh.primitive == Primitive::kLines   ? GL_LINES
                                                    : GL_POINTS;
@@ -332,7 +369,20 @@ void Renderer::render(const Camera& camera, const SE3& T_world_cam, cv::Mat* bgr
   glUniform1f(I.loc_point, opts.point_size);
   glUniform1i(I.loc_tex, 0);
   glActiveTexture(GL_TEXTURE0);
-  for (const auto& m : I.meshes) {
+  // Near geometry first, what encloses the camera (a room's shell) last: llvmpipe tests depth before
+  // shading, so fragments hidden behind what is already drawn cost no texturing. The key is the
+  // distance to the bounding box's farthest corner. Only the cost changes (GL_LESS: ties aside, the
+  // image does not depend on the order).
+  const Eigen::Vector3f centre = T_world_cam.translation().cast<float>();
+  I.draw_order.clear();
+  for (size_t i = 0; i < I.meshes.size(); ++i) {
+    const auto& m = I.meshes[i];
+    const Eigen::Vector3f far = (centre - m.lo).cwiseAbs().cwiseMax((centre - m.hi).cwiseAbs());
+    I.draw_order.emplace_back(far.squaredNorm(), i);
+  }
+  std::sort(I.draw_order.begin(), I.draw_order.end());
+  for (const auto& [key, index] : I.draw_order) {
+    const auto& m = I.meshes[index];
     if (m.texture >= 0) {
       glBindTexture(GL_TEXTURE_2D, I.textures[m.texture]);
       glUniform1i(I.loc_textured, 1);

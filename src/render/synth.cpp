@@ -61,6 +61,7 @@ void SynthOptions::validate() const {
   if (!(noise_sigma >= 0) || noise_sigma > 100) fail("noise sigma must be in [0, 100] (got {})", noise_sigma);
   if (!(shot_noise >= 0) || shot_noise > 100) fail("shot noise must be in [0, 100] (got {})", shot_noise);
   if (index_every < 1) fail("index_every must be >= 1");
+  parseTextureFilter(texture_filter);
   if (queue_size < 1) fail("queue_size must be >= 1");
 }
 
@@ -123,6 +124,7 @@ struct SequenceRenderer::Impl {
     scene = makeScene(so);
     const std::string tname = opts.trajectory.empty() ? defaultTrajectory(opts.scene) : opts.trajectory;
     traj = makeTrajectory(scene, tname, std::max(1, opts.frames - 1) / opts.fps, opts.seed);
+    renderer.setTextureFilter(parseTextureFilter(opts.texture_filter));
     uploadScene(scene, renderer);
     render_cam = camera.undistorted();
     if (camera.hasDistortion()) setupDistortion();

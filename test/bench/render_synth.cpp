@@ -1,7 +1,7 @@
 // Render + readback speed of a 640x480 textured frame (room scene) with OSMesa/llvmpipe.
-// Prints frames/s (median over repetitions) for: colour + depth readback (the synth path), colour
-// only, draw only (no readback), and the full SequenceRenderer frame (+ BGR conversion); the
-// baseline in the same run is an empty scene (clear + readback only).
+// Prints frames/s (median over repetitions) for: colour + depth readback (the synth path; also
+// with trilinear texture filtering, for the ratio), colour only, draw only (no readback), and the full SequenceRenderer
+// frame (+ BGR conversion); the baseline in the same run is an empty scene (clear + readback only).
 //   bench_render_synth --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 // LP_NUM_THREADS (llvmpipe rasteriser threads) defaults to the core count; set it to compare.
 #include <benchmark/benchmark.h>
@@ -46,10 +46,12 @@ struct Fixture {
   }
 };
 
-void run(benchmark::State& state, bool color, bool depth, bool empty) {
+void run(benchmark::State& state, bool color, bool depth, bool empty,
+         TextureFilter filter = TextureFilter::kMipNearest) {
   Fixture& f = Fixture::get();
   Renderer empty_renderer;
   Renderer& r = empty ? empty_renderer : f.renderer;
+  r.setTextureFilter(filter);
   cv::Mat bgr, d;
   int i = 0;
   const double c0 = processCpu();
@@ -62,6 +64,8 @@ void run(benchmark::State& state, bool color, bool depth, bool empty) {
 }
 
 void BM_RenderColorDepth(benchmark::State& s) { run(s, true, true, false); }
+// The same with trilinear texture filtering (synth --texture-filter trilinear), for the ratio.
+void BM_RenderColorDepthTrilinear(benchmark::State& s) { run(s, true, true, false, TextureFilter::kTrilinear); }
 void BM_RenderColorOnly(benchmark::State& s) { run(s, true, false, false); }
 void BM_RenderNoReadback(benchmark::State& s) { run(s, false, false, false); }
 void BM_EmptySceneColorDepth(benchmark::State& s) { run(s, true, true, true); }
@@ -82,6 +86,7 @@ void BM_SequenceFrame(benchmark::State& state) {
 }
 
 BENCHMARK(BM_RenderColorDepth)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+BENCHMARK(BM_RenderColorDepthTrilinear)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
 BENCHMARK(BM_RenderColorOnly)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
 BENCHMARK(BM_RenderNoReadback)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
 BENCHMARK(BM_EmptySceneColorDepth)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);

@@ -85,6 +85,58 @@ TEST(Renderer, EdgesFallBetweenTheRightPixelCentres) {
     }
 }
 
+// Meshes are drawn near ones first whatever order they were added in: the image is the same for
+// every order (the depth test decides), including a mesh that encloses the camera.
+TEST(Renderer, ImageDoesNotDependOnTheOrderMeshesWereAdded) {
+  const Camera cam = Camera::pinhole(80, 60, 70.0, 70.0, 39.5, 29.5);
+  const std::vector<Mesh> meshes = {
+      coloredQuad(
+          {Eigen::Vector3d(-5, -5, 4), Eigen::Vector3d(5, -5, 4), Eigen::Vector3d(5, 5, 4), Eigen::Vector3d(-5, 5, 4)},
+          {0.2f, 0.4f, 0.9f}),  // far wall
+      coloredQuad({Eigen::Vector3d(-0.5, -0.4, 1.5), Eigen::Vector3d(0.6, -0.4, 1.5), Eigen::Vector3d(0.6, 0.5, 1.5),
+                   Eigen::Vector3d(-0.5, 0.5, 1.5)},
+                  {0.9f, 0.1f, 0.1f}),  // near
+      coloredQuad({Eigen::Vector3d(-1, -1, 2.5), Eigen::Vector3d(1.2, -1, 2.0), Eigen::Vector3d(1.2, 0.8, 2.2),
+                   Eigen::Vector3d(-1, 0.8, 2.7)},
+                  {0.1f, 0.8f, 0.2f}),  // tilted, between them
+  };
+  cv::Mat ref_bgr, ref_depth;
+  const std::vector<std::vector<int>> orders = {{0, 1, 2}, {2, 1, 0}, {1, 0, 2}};
+  for (const auto& order : orders) {
+    Renderer r;
+    for (int i : order) r.addMesh(meshes[i]);
+    cv::Mat bgr, depth;
+    r.render(cam, SE3(Eigen::Quaterniond(Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitY())), Eigen::Vector3d(0.1, 0, 0)),
+             &bgr, &depth);
+    if (ref_bgr.empty()) {
+      ref_bgr = bgr;
+      ref_depth = depth;
+      // All three are visible.
+      int red = 0, green = 0, blue = 0;
+      for (int v = 0; v < bgr.rows; ++v)
+        for (int u = 0; u < bgr.cols; ++u) {
+          const cv::Vec3b p = bgr.at<cv::Vec3b>(v, u);
+          red += p[2] > 200;
+          green += p[1] > 180 && p[2] < 60;
+          blue += p[0] > 200 && p[2] < 80;
+        }
+      EXPECT_GT(red, 50);
+      EXPECT_GT(green, 50);
+      EXPECT_GT(blue, 50);
+      continue;
+    }
+    EXPECT_EQ(cv::norm(bgr, ref_bgr, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(depth, ref_depth, cv::NORM_INF), 0.0);
+  }
+}
+
+TEST(Renderer, TextureFilterNames) {
+  EXPECT_EQ(parseTextureFilter("mip-nearest"), TextureFilter::kMipNearest);
+  EXPECT_EQ(parseTextureFilter("trilinear"), TextureFilter::kTrilinear);
+  EXPECT_STREQ(textureFilterName(TextureFilter::kTrilinear), "trilinear");
+  EXPECT_THROW(parseTextureFilter("nearest"), Error);
+}
+
 // A coloured marker around a known 3D point in the furnished room lands where Camera::project puts
 // it (centroid of its pixels, sub-pixel), seen from a generic pose.
 TEST(Renderer, MarkerLandsWhereCameraProjectPutsIt) {

@@ -65,6 +65,17 @@ struct RenderOptions {
   float line_width = 1.f;               // pixels, for Primitive::kLines
 };
 
+// How textures are sampled when minified. llvmpipe spends most of a frame texturing: on the room
+// scene kMipNearest costs 0.7x the CPU of kTrilinear per 640x480 frame, and the images of the two
+// differ by 45 dB PSNR (bench_render_synth; README, "Synthetic ground-truth sequences").
+enum class TextureFilter {
+  kMipNearest,  // bilinear within the nearest mipmap level (GL_LINEAR_MIPMAP_NEAREST)
+  kTrilinear,   // bilinear in the two nearest levels, blended (GL_LINEAR_MIPMAP_LINEAR)
+};
+// "mip-nearest" / "trilinear"; parseTextureFilter throws nerfslam::Error naming the valid names.
+const char* textureFilterName(TextureFilter filter);
+TextureFilter parseTextureFilter(const std::string& name);
+
 // Renders meshes to an offscreen framebuffer of any size (up to 8192 x 8192) and reads back colour
 // (CV_8UC3 BGR) and depth (CV_32F, metres). Owns its GL context and every GL object it creates.
 class Renderer {
@@ -74,9 +85,14 @@ class Renderer {
   Renderer(const Renderer&) = delete;
   Renderer& operator=(const Renderer&) = delete;
 
-  // BGR or gray 8-bit image; mipmapped, trilinear filtering, repeat wrapping. Returns its index.
+  // BGR or gray 8-bit image; mipmapped, filtered as setTextureFilter says, repeat wrapping.
+  // Returns its index.
   int addTexture(const cv::Mat& image);
-  // Uploads a mesh; returns its index. Meshes are drawn in the order added.
+  // Minification filter of every texture, those added before and after (default kMipNearest).
+  void setTextureFilter(TextureFilter filter);
+  // Uploads a mesh; returns its index. Meshes are drawn near ones first (by the distance from the
+  // camera to their bounding box's farthest corner); with the depth test the image does not
+  // depend on the order, only the cost does.
   int addMesh(const Mesh& mesh);
   void clearMeshes();
   size_t meshCount() const;
