@@ -72,8 +72,9 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--textures", o.textures, "auto (photos when the shared data is found), procedural or photo")
           ->capture_default_str();
       sub.add_option("--texture-filter", o.texture_filter,
-                     "mip-nearest (bilinear in the nearest mipmap level) or trilinear (1.4x the render CPU)")
-          ->check(CLI::IsMember({"mip-nearest", "trilinear"}))
+                     "trilinear, or mip-nearest (bilinear in the nearest mipmap level: 0.7x the render CPU, less "
+                     "accurate SLAM)")
+          ->check(CLI::IsMember({"trilinear", "mip-nearest"}))
           ->capture_default_str();
       sub.add_option("--out", a->out, "Output folder")->required();
       return [a]() -> int {

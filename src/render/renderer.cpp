@@ -160,7 +160,7 @@ struct Renderer::Impl {
   GLuint fbo = 0, rb_color = 0, rb_depthz = 0, rb_zbuf = 0;
   int fb_w = 0, fb_h = 0;
   std::vector<GLuint> textures;
-  TextureFilter texture_filter = TextureFilter::kMipNearest;
+  TextureFilter texture_filter = TextureFilter::kTrilinear;
   struct GpuMesh {
     GLuint vao = 0, vbo = 0, ebo = 0;
     GLenum mode = GL_TRIANGLES;
@@ -258,7 +258,7 @@ const char* textureFilterName(TextureFilter filter) {
 TextureFilter parseTextureFilter(const std::string& name) {
   if (name == "mip-nearest") return TextureFilter::kMipNearest;
   if (name == "trilinear") return TextureFilter::kTrilinear;
-  fail("unknown texture filter '{}' (valid: mip-nearest, trilinear)", name);
+  fail("unknown texture filter '{}' (valid: trilinear, mip-nearest)", name);
 }
 
 void Renderer::setTextureFilter(TextureFilter filter) {
@@ -372,7 +372,7 @@ void Renderer::render(const Camera& camera, const SE3& T_world_cam, cv::Mat* bgr
   // Near geometry first, what encloses the camera (a room's shell) last: llvmpipe tests depth before
   // shading, so fragments hidden behind what is already drawn cost no texturing. The key is the
   // distance to the bounding box's farthest corner. Only the cost changes (GL_LESS: ties aside, the
-  // image does not depend on the order).
+  // image does not depend on the order); on the room scene the change was within the noise.
   const Eigen::Vector3f centre = T_world_cam.translation().cast<float>();
   I.draw_order.clear();
   for (size_t i = 0; i < I.meshes.size(); ++i) {
