@@ -29,8 +29,8 @@
 //   ~wait_for_subscribers  bool    hold the first frame until image and camera_info have a
 //                                  subscriber (for tests and recording)                       (default false)
 //   ~min_subscribers       int     with ~wait_for_subscribers: that many image subscribers
-//                                  (several nodes fed the same frames), and every camera_info
-//                                  subscriber the master lists connected, >= 1              (default 1)
+//                                  (several nodes fed the same frames), then up to 5 s for
+//                                  their camera_info connections, >= 1                      (default 1)
 //   ~exit_when_done        bool    exit after the last frame (and 1 s for it to be sent)
 //                                  instead of idling                                          (default false)
 // A frame whose image cannot be decoded is reported (ROS_ERROR naming the file) and skipped.
@@ -42,6 +42,7 @@
 #include <string>
 
 #include <geometry_msgs/PoseStamped.h>
+#include <image_transport/camera_common.h>
 #include <image_transport/image_transport.h>
 #include <nav_msgs/Path.h>
 #include <ros/ros.h>
@@ -57,6 +58,8 @@ namespace {
 
 // After the last frame with ~exit_when_done: time for roscpp to send what is queued.
 constexpr double kExitLingerSeconds = 1.0;
+// With ~wait_for_subscribers: the longest wait for camera_info connections once the image has its.
+constexpr double kInfoWaitSeconds = 5.0;
 
 // How many subscribers the master lists for `topic` (0 when the master cannot be asked).
 uint32_t registeredSubscribers(const std::string& topic) {
@@ -216,8 +219,11 @@ int run(int argc, char** argv) {
   image_transport::ImageTransport it(nh);
   // The image and its camera_info on separate publishers (as image_transport's CameraPublisher
   // does) so that ~wait_for_subscribers can wait for each topic's connections.
+  // camera_info beside the image's resolved topic, remapped with it (image:=/cam/image gives
+  // /cam/camera_info), as image_transport names it.
   image_transport::Publisher image_pub = it.advertise("image", 10);
-  ros::Publisher info_pub = nh.advertise<sensor_msgs::CameraInfo>("camera_info", 10);
+  ros::Publisher info_pub =
+      nh.advertise<sensor_msgs::CameraInfo>(image_transport::getCameraInfoTopic(image_pub.getTopic()), 10);
   ros::Publisher path_pub;
   std::unique_ptr<tf2_ros::TransformBroadcaster> tf_pub;
   nav_msgs::Path gt_path;
@@ -232,14 +238,24 @@ int run(int argc, char** argv) {
   if (p.wait_for_subscribers) {
     ROS_INFO("waiting for %d subscriber(s) on %s and %s", p.min_subscribers, image_pub.getTopic().c_str(),
              info_pub.getTopic().c_str());
-    // The image's subscribers connected, and every subscriber the master lists for camera_info:
-    // a subscriber that pairs the two (camera subscribers do) would otherwise miss the first frames
-    // when its camera_info connection completes after its image connection (on a loaded machine,
-    // seconds later). Subscribers of the image alone (viewers, tests) do not hold it back.
     const auto min_subscribers = static_cast<uint32_t>(p.min_subscribers);
-    while (ros::ok() && (image_pub.getNumSubscribers() < min_subscribers ||
-                         info_pub.getNumSubscribers() < registeredSubscribers(info_pub.getTopic())))
-      ros::WallDuration(0.02).sleep();
+    while (ros::ok() && image_pub.getNumSubscribers() < min_subscribers) ros::WallDuration(0.02).sleep();
+    // Then the camera_info connections: a subscriber that pairs the two topics (camera subscribers
+    // do) would otherwise miss the first frames when its camera_info connection completes after its
+    // image connection (on a loaded machine, seconds later). As many as the master lists for
+    // camera_info, but no more than the image has (subscribers of the image alone, viewers and
+    // tests, do not hold it back), and at most kInfoWaitSeconds: a node killed without
+    // unregistering stays listed.
+    const ros::WallTime info_deadline = ros::WallTime::now() + ros::WallDuration(kInfoWaitSeconds);
+    auto info_ready = [&] {
+      const uint32_t wanted = std::min(registeredSubscribers(info_pub.getTopic()), image_pub.getNumSubscribers());
+      return info_pub.getNumSubscribers() >= wanted;
+    };
+    while (ros::ok() && !info_ready() && ros::WallTime::now() < info_deadline) ros::WallDuration(0.02).sleep();
+    if (!info_ready())
+      ROS_WARN("%u of the subscribers the master lists for %s did not connect within %g s; publishing anyway",
+               registeredSubscribers(info_pub.getTopic()) - info_pub.getNumSubscribers(), info_pub.getTopic().c_str(),
+               kInfoWaitSeconds);
   }
 
   const nerfslam::ImageMode mode = p.color ? nerfslam::ImageMode::kColor : nerfslam::ImageMode::kGray;
