@@ -217,10 +217,9 @@ int run(int argc, char** argv) {
     ROS_WARN("~publish_ground_truth is set but the dataset has no ground truth: nothing will be published on tf");
 
   image_transport::ImageTransport it(nh);
-  // The image and its camera_info on separate publishers (as image_transport's CameraPublisher
-  // does) so that ~wait_for_subscribers can wait for each topic's connections.
-  // camera_info beside the image's resolved topic, remapped with it (image:=/cam/image gives
-  // /cam/camera_info), as image_transport names it.
+  // The image and its camera_info on two publishers, so that ~wait_for_subscribers can wait for
+  // each topic's connections. camera_info is named from the resolved image topic, as
+  // image_transport's CameraPublisher does (image:=/cam/image gives /cam/camera_info).
   image_transport::Publisher image_pub = it.advertise("image", 10);
   ros::Publisher info_pub =
       nh.advertise<sensor_msgs::CameraInfo>(image_transport::getCameraInfoTopic(image_pub.getTopic()), 10);
@@ -253,8 +252,8 @@ int run(int argc, char** argv) {
     };
     while (ros::ok() && !info_ready() && ros::WallTime::now() < info_deadline) ros::WallDuration(0.02).sleep();
     if (!info_ready())
-      ROS_WARN("%u of the subscribers the master lists for %s did not connect within %g s; publishing anyway",
-               registeredSubscribers(info_pub.getTopic()) - info_pub.getNumSubscribers(), info_pub.getTopic().c_str(),
+      ROS_WARN("%u of the %u subscribers the master lists for %s connected within %g s; publishing anyway",
+               info_pub.getNumSubscribers(), registeredSubscribers(info_pub.getTopic()), info_pub.getTopic().c_str(),
                kInfoWaitSeconds);
   }
 
