@@ -57,8 +57,20 @@ case $kind in
     san="address;undefined"
     select='.'
     finding=()
-    never=()
-    long=()
+    # Not a finding: the kill test's time window assumes an uninstrumented child; under ASan a save
+    # takes longer, so fewer of the 60 kills land between saves than the test asks for (11 map
+    # generations against > 20). Its subject, atomic saves, is tested in the Release test stage.
+    never=('MapStore\.KillDuringSaveLeavesPreviousMapLoadable$')
+    # Long run only (NERFSLAM_SANITIZE_LONG=1): the end-to-end runs that take over a minute each
+    # under ASan (measured, docs/sanitizers.md). The parsers, the threads, the map store, the trainer
+    # and the renderer all run in the CI selection through their shorter tests.
+    long=('Trainer\.SyntheticSphereReachesPsnrFloor$'  # 210 s: a quality floor; the trainer's code runs in Trainer.*, TrainerOnline.*
+          'NerfMapping\.(HeldOutViewsImproveWithTraining|RefitKeepsWhatWasLearned|ResumesFromASavedModelFrozenOrTraining)$'
+          'NerfMapping\.(DivergenceIsRolledBackAndTrainingGoesOn|WholeSystemWritesTheDenseMapAndReport)$'
+          'TrackingFaults\.(SuddenJumpIsLostThenRelocalisedWhenTheViewReturns|BlackFramesFrozenFrameAndGapAreReportedAndRecovered)$'
+          'RunSystem\.(Kitti06First51TracksEveryFrameAccurately|NewTsukubaFirst75|WithoutDatasetRunsTheSyntheticRoomDemo)$'
+          'MapStoreCli\.(ExtendAddsKeyframesToASavedMap|LocalizesInASavedMapAlongAnotherTrajectory)$'
+          'SyntheticSlam\.(LocalizationOnlySwitchStopsAndResumesMapping|HandheldRoomTracksEveryFrameAccurately)$')
     timeout=1800
     targets=(all)
     ;;
