@@ -111,16 +111,18 @@ struct RadianceField::Impl {
 };
 
 // What forward() keeps for backward(): the inputs and the hash encoding of every sample (the
-// expensive, memory-bound part) and the outputs. The MLP activations are not stored: backward()
-// recomputes them tile by tile for the samples it back-propagates (as instant-ngp's training
-// recomputes its forward pass on the compacted samples), so they never leave L1/L2 and the
-// workspace is ~170 bytes per sample instead of ~1 KiB.
+// expensive, memory-bound part), the density network's outputs and the outputs. The other MLP
+// activations are not stored: backward() recomputes them tile by tile for the samples it
+// back-propagates (as instant-ngp's training recomputes its forward pass on the compacted samples),
+// so they never leave L1/L2 and the workspace is ~230 bytes per sample instead of ~1 KiB.
 struct RadianceField::Workspace::Impl {
   size_t n = 0;
   std::vector<float> pos /*[n][3]*/, dir /*[n][3]*/, enc /*[tile][n_enc][kTile]*/, rgb /*[n][3]*/, sigma /*[n]*/,
       logd /*[n]*/;
   // Per-tile scratch: activations of one tile (forward, and recomputed in backward), gradients.
   std::vector<float> h1, cin, c1, c2, logits, dlog, dc2, dc1, dd, dh1, denc, t_enc;
+  std::vector<float> geo;      // [n][kDensityOutputs]: density-network outputs (forwardColor's input)
+  std::vector<uint32_t> need;  // samples forwardColor evaluates
   std::vector<uint32_t> live;  // samples with a non-zero loss gradient
 };
 
@@ -360,6 +362,11 @@ RadianceField::Gradients RadianceField::makeGradients() const {
 
 void RadianceField::forward(Workspace& wsp, const float* pos, const float* dir, size_t n, float* sigma,
                             float* rgb) const {
+  forwardDensity(wsp, pos, dir, n, sigma);
+  forwardColor(wsp, nullptr, rgb);
+}
+
+void RadianceField::forwardDensity(Workspace& wsp, const float* pos, const float* dir, size_t n, float* sigma) const {
   const Impl& f = *impl_;
   Workspace::Impl& ws = *wsp.impl_;
   const size_t H = size_t(f.H), E = size_t(f.n_enc);
@@ -371,31 +378,65 @@ void RadianceField::forward(Workspace& wsp, const float* pos, const float* dir, 
     if (v.size() < size) v.resize(size);
   };
   grow(ws.enc, n_tiles * E * kTile);
+  grow(ws.geo, n * kDensityOutputs);
   grow(ws.rgb, n * 3);
   grow(ws.sigma, n);
   grow(ws.logd, n);
   grow(ws.h1, kTile * H);
-  grow(ws.cin, kTile * kColorIn);
-  grow(ws.c1, kTile * H);
-  grow(ws.c2, kTile * H);
-  grow(ws.logits, kTile * kColorOutPadded);
   const float clampv = float(f.cfg.max_log_density);
-  float* cin = ws.cin.data();
   for (size_t t = 0; t < n_tiles; ++t) {
     const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
     float* encT = ws.enc.data() + t * E * kTile;
     hashEncode(f.grid(), pos + 3 * s0, m, encT, kTile);
-    densityTile(f, m, encT, ws.h1.data(), cin + kShCoeffs, kColorIn);
-    shEncodeBatch(dir + 3 * s0, m, cin, kColorIn);
-    colorTile(f, m, cin, ws.c1.data(), ws.c2.data(), ws.logits.data());
+    float* geo = ws.geo.data() + s0 * kDensityOutputs;
+    densityTile(f, m, encT, ws.h1.data(), geo, kDensityOutputs);
     for (size_t i = 0; i < m; ++i) {
-      const float ld = cin[i * kColorIn + kShCoeffs];
+      const float ld = geo[i * kDensityOutputs];
       ws.logd[s0 + i] = ld;
       ws.sigma[s0 + i] = std::exp(std::min(ld, clampv));
-      for (size_t k = 0; k < 3; ++k) ws.rgb[3 * (s0 + i) + k] = sigmoid(ws.logits[i * kColorOutPadded + k]);
     }
   }
   if (sigma) std::copy(ws.sigma.begin(), ws.sigma.begin() + long(n), sigma);
+}
+
+void RadianceField::forwardColor(Workspace& wsp, const uint8_t* needed, float* rgb) const {
+  const Impl& f = *impl_;
+  Workspace::Impl& ws = *wsp.impl_;
+  const size_t n = ws.n, H = size_t(f.H);
+  auto grow = [](std::vector<float>& v, size_t size) {
+    if (v.size() < size) v.resize(size);
+  };
+  grow(ws.cin, kTile * kColorIn);
+  grow(ws.c1, kTile * H);
+  grow(ws.c2, kTile * H);
+  grow(ws.logits, kTile * kColorOutPadded);
+  std::vector<uint32_t>& idx = ws.need;
+  idx.clear();
+  for (size_t i = 0; i < n; ++i) {
+    if (!needed || needed[i]) {
+      idx.push_back(uint32_t(i));
+    } else {
+      ws.rgb[3 * i] = ws.rgb[3 * i + 1] = ws.rgb[3 * i + 2] = 0.f;
+    }
+  }
+  // Tiles of needed samples in order (the rows of a tile are independent, so compacting them does
+  // not change a sample's bits).
+  float tdir[3 * kTile];
+  float* cin = ws.cin.data();
+  for (size_t j0 = 0; j0 < idx.size(); j0 += kTile) {
+    const size_t m = std::min(kTile, idx.size() - j0);
+    const uint32_t* ti = idx.data() + j0;
+    for (size_t i = 0; i < m; ++i) {
+      const size_t s = ti[i];
+      std::copy(ws.geo.begin() + long(s * kDensityOutputs), ws.geo.begin() + long((s + 1) * kDensityOutputs),
+                cin + i * kColorIn + kShCoeffs);
+      for (size_t k = 0; k < 3; ++k) tdir[3 * i + k] = ws.dir[3 * s + k];
+    }
+    shEncodeBatch(tdir, m, cin, kColorIn);
+    colorTile(f, m, cin, ws.c1.data(), ws.c2.data(), ws.logits.data());
+    for (size_t i = 0; i < m; ++i)
+      for (size_t k = 0; k < 3; ++k) ws.rgb[3 * size_t(ti[i]) + k] = sigmoid(ws.logits[i * kColorOutPadded + k]);
+  }
   if (rgb) std::copy(ws.rgb.begin(), ws.rgb.begin() + long(3 * n), rgb);
 }
 
@@ -575,9 +616,10 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
       const double c0 = threadCpuMs();
       for (const Gradients* g : per_thread) scatterLevel(f, *g->impl_, l, sc.grad.data(), sc.touched.data());
       const double c1 = threadCpuMs();
-      updated[size_t(w)] += adamSparseLevel(f.table.data() + 2 * size_t(lv.offset), f.table_m.data() + 2 * size_t(lv.offset),
-                      f.table_v.data() + 2 * size_t(lv.offset), sc.grad.data(), sc.touched.data(),
-                      f.table_steps.data() + lv.offset, lv.size, lr, f.cfg.adam, f.bias);
+      updated[size_t(w)] +=
+          adamSparseLevel(f.table.data() + 2 * size_t(lv.offset), f.table_m.data() + 2 * size_t(lv.offset),
+                          f.table_v.data() + 2 * size_t(lv.offset), sc.grad.data(), sc.touched.data(),
+                          f.table_steps.data() + lv.offset, lv.size, lr, f.cfg.adam, f.bias);
       scatter_ms[size_t(w)] += c1 - c0;
       adam_ms[size_t(w)] += threadCpuMs() - c1;
     }

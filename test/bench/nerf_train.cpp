@@ -5,6 +5,8 @@
 //
 // Counters of BM_TrainStep (per step unless named otherwise):
 //   samples_per_s      ray samples per wall second (the machine is shared: see samples_per_cpu_s)
+//   composited_share   share of the samples before their ray's transmittance fell below 1e-4 (the
+//                      rest take part in the forward and backward passes with zero gradient)
 //   samples_per_cpu_s  ray samples per CPU second summed over all threads (per-core throughput;
 //                      on an idle 2-core machine wall throughput is about twice this)
 //   ms_*               wall ms per stage as the trainer reports them (march, field forward,
@@ -76,13 +78,14 @@ Setup& setup() {
 
 void BM_TrainStep(benchmark::State& state) {
   auto& s = setup();
-  int64_t samples = 0;
+  int64_t samples = 0, composited = 0;
   nerf::StageTimes t;
   double scatter = 0, adam = 0, mlp = 0, entries = 0;
   const double cpu0 = processCpuSeconds();
   for (auto _ : state) {
     const auto st = s.trainer->step();
     samples += st.samples;
+    composited += st.samples_composited;
     t.march += st.times.march;
     t.field_forward += st.times.field_forward;
     t.composite += st.times.composite;
@@ -100,6 +103,7 @@ void BM_TrainStep(benchmark::State& state) {
   state.counters["samples_per_s"] = benchmark::Counter(double(samples), benchmark::Counter::kIsRate);
   state.counters["samples_per_cpu_s"] = double(samples) / cpu;
   state.counters["samples_per_step"] = double(samples) / n;
+  state.counters["composited_share"] = samples > 0 ? double(composited) / double(samples) : 0.0;
   state.counters["ms_march"] = 1e3 * t.march / n;
   state.counters["ms_field_fwd"] = 1e3 * t.field_forward / n;
   state.counters["ms_composite"] = 1e3 * t.composite / n;

@@ -51,6 +51,31 @@ TEST(Composite, EarlyTerminationStopsAtTransmittanceFloor) {
   EXPECT_NEAR(1.f - r.opacity, std::exp(-0.5f * 19), 1e-7);
 }
 
+TEST(Composite, UsedSamplesFromDensitiesAloneMatchTheComposite) {
+  // The trainer evaluates colour only for these samples: the count must be compositeForward's.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  const float bg[3] = {0.5f, 0.5f, 0.5f};
+  int terminated = 0;
+  for (int ray = 0; ray < 500; ++ray) {
+    const int n = 1 + int(u(rng) * 120);
+    const float scale = std::pow(10.f, 4.f * u(rng) - 1.f);  // transparent to opaque rays
+    const size_t count = static_cast<size_t>(n);
+    std::vector<float> sigma(count), rgb(3 * count), dt(count), t(count);
+    for (int i = 0; i < n; ++i) {
+      sigma[size_t(i)] = scale * u(rng);
+      dt[size_t(i)] = 0.001f + 0.01f * u(rng);
+      t[size_t(i)] = 0.01f * float(i);
+      for (int k = 0; k < 3; ++k) rgb[3 * size_t(i) + size_t(k)] = u(rng);
+    }
+    const CompositeResult r = compositeForward(n, sigma.data(), rgb.data(), dt.data(), t.data(), bg);
+    ASSERT_EQ(compositeUsedSamples(n, sigma.data(), dt.data()), r.used) << "ray " << ray;
+    terminated += r.used < n;
+  }
+  EXPECT_GT(terminated, 50);  // the early termination was exercised
+  EXPECT_LT(terminated, 450);
+}
+
 double lossOf(const std::vector<float>& sigma, const std::vector<float>& rgb, const std::vector<float>& dt,
               const std::vector<float>& t, const float bg[3], const double a[3], double b) {
   const CompositeResult r = compositeForward(int(sigma.size()), sigma.data(), rgb.data(), dt.data(), t.data(), bg);

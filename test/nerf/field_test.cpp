@@ -120,6 +120,43 @@ TEST(RadianceField, TrainingForwardMatchesInference) {
   }
 }
 
+TEST(RadianceField, TwoStageTrainingForwardEqualsForwardAndBackward) {
+  // forwardDensity + forwardColor on a subset: the same bits as forward() for the needed samples,
+  // rgb 0 for the others, and the same parameter gradients when only needed samples carry a loss.
+  RadianceField f(smallConfig(), 5);
+  randomiseTable(f, 0.5f, 9);
+  const size_t n = 200;  // > 3 tiles, so compacted tiles mix samples of different forward tiles
+  const Batch b = randomBatch(n, 10);
+  std::vector<uint8_t> needed(n);
+  for (size_t i = 0; i < n; ++i) needed[i] = (i % 5 != 2 && i % 7 != 0) ? 1 : 0;
+  std::vector<float> s1(n), c1(3 * n), s2(n), c2(3 * n);
+  auto ws1 = f.makeWorkspace(), ws2 = f.makeWorkspace();
+  f.forward(ws1, b.pos.data(), b.dir.data(), n, s1.data(), c1.data());
+  f.forwardDensity(ws2, b.pos.data(), b.dir.data(), n, s2.data());
+  f.forwardColor(ws2, needed.data(), c2.data());
+  for (size_t i = 0; i < n; ++i) {
+    ASSERT_EQ(s1[i], s2[i]) << i;
+    for (size_t k = 0; k < 3; ++k) ASSERT_EQ(c2[3 * i + k], needed[i] ? c1[3 * i + k] : 0.f) << i;
+  }
+  std::vector<float> dls(n), dlc(3 * n);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  for (size_t i = 0; i < n; ++i) {
+    if (!needed[i]) continue;
+    dls[i] = u(rng);
+    for (size_t k = 0; k < 3; ++k) dlc[3 * i + k] = u(rng);
+  }
+  auto g1 = f.makeGradients(), g2 = f.makeGradients();
+  f.backward(ws1, dls.data(), dlc.data(), g1);
+  f.backward(ws2, dls.data(), dlc.data(), g2);
+  const auto a = f.gradients(g1), c = f.gradients(g2);
+  ASSERT_EQ(a.size(), c.size());
+  for (size_t p = 0; p < a.size(); ++p) {
+    ASSERT_EQ(a[p].size, c[p].size);
+    EXPECT_EQ(0, std::memcmp(a[p].data, c[p].data, a[p].size * sizeof(float))) << a[p].name;
+  }
+}
+
 TEST(RadianceField, TwoStageInferenceEqualsQuery) {
   RadianceField f(smallConfig(), 4);
   randomiseTable(f, 0.5f, 7);

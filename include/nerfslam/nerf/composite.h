@@ -11,6 +11,7 @@
 // Compositing stops early once T drops below `min_transmittance` (1e-4 as instant-ngp); samples
 // after that point get weight 0 and T_end is the transmittance where it stopped. The backward pass
 // differentiates exactly this truncated sum, so it matches finite differences.
+#include <cmath>
 #include <cstdint>
 
 namespace nerfslam::nerf {
@@ -29,6 +30,20 @@ constexpr float kMinTransmittance = 1e-4f;
 // rgb is n x 3 interleaved.
 CompositeResult compositeForward(int n, const float* sigma, const float* rgb, const float* dt, const float* t,
                                  const float background[3], float min_transmittance = kMinTransmittance);
+
+// The samples compositeForward would use (its `used`), from the densities alone: the transmittance
+// does not depend on colour. Same arithmetic as compositeForward, so the count is the same.
+inline int compositeUsedSamples(int n, const float* sigma, const float* dt,
+                                float min_transmittance = kMinTransmittance) {
+  float T = 1.f;
+  int i = 0;
+  for (; i < n; ++i) {
+    if (T < min_transmittance) break;
+    const float alpha = 1.f - std::exp(-sigma[i] * dt[i]);
+    T *= 1.f - alpha;
+  }
+  return i;
+}
 
 // Gradient of L with respect to sigma and rgb given dL/d(colour) and dL/d(depth_sum) (set d_depth_sum = 0
 // for a colour-only loss). `fwd` must be the forward result for the same inputs. Writes d_sigma[0..n)

@@ -149,6 +149,13 @@ class RadianceField {
   // Evaluates sigma (n) and rgb (n*3) and keeps in `ws` what backward() needs. sigma/rgb may be
   // null when not wanted (they are still kept in the workspace).
   void forward(Workspace& ws, const float* pos, const float* dir, size_t n, float* sigma, float* rgb) const;
+  // forward() in two stages, for training: forwardDensity() evaluates sigma (n) of every sample,
+  // then forwardColor() the colour of the samples with needed[i] != 0 only (all when needed is
+  // null); the others get rgb 0 and must have zero loss gradients in backward(). In training these
+  // are the samples past their ray's early termination (compositeUsedSamples), about 40 % of them,
+  // whose colour the composite never reads. Bit-identical to forward() for the needed samples.
+  void forwardDensity(Workspace& ws, const float* pos, const float* dir, size_t n, float* sigma) const;
+  void forwardColor(Workspace& ws, const uint8_t* needed, float* rgb) const;
   // Back-propagates dL/dsigma (n) and dL/drgb (n*3) of the last forward() on `ws` and adds the
   // parameter gradients into `grads`. Either pointer may be null (treated as zeros). Samples whose
   // gradients are all exactly zero (e.g. past a ray's early termination) are skipped: they add

@@ -54,7 +54,8 @@ struct StageTimes {
 struct StepStats {
   double loss = 0;  // mean Huber loss per ray (sum over channels)
   int64_t rays = 0;
-  int64_t samples = 0;
+  int64_t samples = 0;             // marched samples, each through the field's forward and backward
+  int64_t samples_composited = 0;  // of those, before their ray's transmittance fell below 1e-4
   bool rolled_back = false;
   StageTimes times;  // seconds of wall time for this step, per stage
 };
