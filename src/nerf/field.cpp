@@ -236,6 +236,11 @@ GemmArgs mm(size_t M, size_t N, size_t K, const float* a, size_t a_ms, size_t a_
   return g;
 }
 
+// Grows a scratch buffer to at least `size` (never shrinks: buffers are reused across calls).
+inline void growTo(std::vector<float>& v, size_t size) {
+  if (v.size() < size) v.resize(size);
+}
+
 inline float sigmoid(float x) { return 1.f / (1.f + std::exp(-x)); }
 
 }  // namespace
@@ -374,15 +379,12 @@ void RadianceField::forwardDensity(Workspace& wsp, const float* pos, const float
   ws.n = n;
   ws.pos.assign(pos, pos + 3 * n);
   ws.dir.assign(dir, dir + 3 * n);
-  auto grow = [](std::vector<float>& v, size_t size) {
-    if (v.size() < size) v.resize(size);
-  };
-  grow(ws.enc, n_tiles * E * kTile);
-  grow(ws.geo, n * kDensityOutputs);
-  grow(ws.rgb, n * 3);
-  grow(ws.sigma, n);
-  grow(ws.logd, n);
-  grow(ws.h1, kTile * H);
+  growTo(ws.enc, n_tiles * E * kTile);
+  growTo(ws.geo, n * kDensityOutputs);
+  growTo(ws.rgb, n * 3);
+  growTo(ws.sigma, n);
+  growTo(ws.logd, n);
+  growTo(ws.h1, kTile * H);
   const float clampv = float(f.cfg.max_log_density);
   for (size_t t = 0; t < n_tiles; ++t) {
     const size_t s0 = t * kTile, m = std::min(kTile, n - s0);
@@ -403,13 +405,10 @@ void RadianceField::forwardColor(Workspace& wsp, const uint8_t* needed, float* r
   const Impl& f = *impl_;
   Workspace::Impl& ws = *wsp.impl_;
   const size_t n = ws.n, H = size_t(f.H);
-  auto grow = [](std::vector<float>& v, size_t size) {
-    if (v.size() < size) v.resize(size);
-  };
-  grow(ws.cin, kTile * kColorIn);
-  grow(ws.c1, kTile * H);
-  grow(ws.c2, kTile * H);
-  grow(ws.logits, kTile * kColorOutPadded);
+  growTo(ws.cin, kTile * kColorIn);
+  growTo(ws.c1, kTile * H);
+  growTo(ws.c2, kTile * H);
+  growTo(ws.logits, kTile * kColorOutPadded);
   std::vector<uint32_t>& idx = ws.need;
   idx.clear();
   for (size_t i = 0; i < n; ++i) {
@@ -470,21 +469,18 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
               g.pos.begin() + long(3 * (seg0 + j)));
   float* seg_denc = g.denc.data() + denc0;  // [l][s][2], s < nl
   const size_t n_tiles = (nl + kTile - 1) / kTile;
-  auto grow = [](std::vector<float>& v, size_t size) {
-    if (v.size() < size) v.resize(size);
-  };
-  grow(ws.dlog, kTile * kColorOutPadded);
-  grow(ws.dc2, kTile * H);
-  grow(ws.dc1, kTile * H);
-  grow(ws.dd, kTile * kDensityOutputs);
-  grow(ws.dh1, kTile * H);
-  grow(ws.denc, kTile * E);
-  grow(ws.t_enc, E * kTile);
-  grow(ws.h1, kTile * H);
-  grow(ws.cin, kTile * kColorIn);
-  grow(ws.c1, kTile * H);
-  grow(ws.c2, kTile * H);
-  grow(ws.logits, kTile * kColorOutPadded);
+  growTo(ws.dlog, kTile * kColorOutPadded);
+  growTo(ws.dc2, kTile * H);
+  growTo(ws.dc1, kTile * H);
+  growTo(ws.dd, kTile * kDensityOutputs);
+  growTo(ws.dh1, kTile * H);
+  growTo(ws.denc, kTile * E);
+  growTo(ws.t_enc, E * kTile);
+  growTo(ws.h1, kTile * H);
+  growTo(ws.cin, kTile * kColorIn);
+  growTo(ws.c1, kTile * H);
+  growTo(ws.c2, kTile * H);
+  growTo(ws.logits, kTile * kColorOutPadded);
   std::vector<float> tdir(3 * kTile);
   float* gw = g.mlp.data();
   for (size_t t = 0; t < n_tiles; ++t) {
