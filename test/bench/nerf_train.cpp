@@ -2,11 +2,13 @@
 // optimiser on 2 threads, per-stage times, and a 640x480 render of the partly trained model.
 //   bench_nerf_train [--benchmark_min_time=...]   (needs the shared data; see test_support.h)
 //   NERFSLAM_BENCH_WARMUP_STEPS=N: training steps before measuring (default 200)
+//   NERFSLAM_BENCH_SAMPLES_PER_STEP=N: the trainer's target samples per step (default: TrainOptions',
+//     2^16; the paper's batch, as instant-ngp's target_batch_size, is 2^18)
 //
 // Counters of BM_TrainStep (per step unless named otherwise):
 //   samples_per_s      ray samples per wall second (the machine is shared: see samples_per_cpu_s)
 //   composited_share   share of the samples before their ray's transmittance fell below 1e-4 (the
-//                      rest take part in the forward and backward passes with zero gradient)
+//                      rest get a density, but no colour and no backward pass: zero gradient)
 //   samples_per_cpu_s  ray samples per CPU second summed over all threads (per-core throughput;
 //                      on an idle 2-core machine wall throughput is about twice this)
 //   ms_*               wall ms per stage as the trainer reports them (march, field forward,
@@ -65,6 +67,7 @@ Setup& setup() {
     r.model = std::make_unique<nerf::NerfModel>(nerf::NerfModel::create(nerf::FieldConfig{}, scene, 0));
     nerf::TrainOptions o;
     o.threads = 2;
+    if (const char* sps = std::getenv("NERFSLAM_BENCH_SAMPLES_PER_STEP")) o.samples_per_step = std::atoi(sps);
     r.trainer = std::make_unique<nerf::Trainer>(*r.model, r.views, o);
     // Warm-up: past the first grid updates and into the regime of a 60 s run (rays terminate,
     // the grid is sparse). NERFSLAM_BENCH_WARMUP_STEPS overrides the default 200.
