@@ -469,18 +469,14 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
               g.pos.begin() + long(3 * (seg0 + j)));
   float* seg_denc = g.denc.data() + denc0;  // [l][s][2], s < nl
   const size_t n_tiles = (nl + kTile - 1) / kTile;
-  growTo(ws.dlog, kTile * kColorOutPadded);
-  growTo(ws.dc2, kTile * H);
-  growTo(ws.dc1, kTile * H);
-  growTo(ws.dd, kTile * kDensityOutputs);
-  growTo(ws.dh1, kTile * H);
-  growTo(ws.denc, kTile * E);
-  growTo(ws.t_enc, E * kTile);
-  growTo(ws.h1, kTile * H);
-  growTo(ws.cin, kTile * kColorIn);
-  growTo(ws.c1, kTile * H);
-  growTo(ws.c2, kTile * H);
-  growTo(ws.logits, kTile * kColorOutPadded);
+  // Per-tile scratch, in floats per tile.
+  using Scratch = std::pair<std::vector<float>*, size_t>;
+  const size_t out = kColorOutPadded, dens = kDensityOutputs, cin_w = kColorIn;
+  for (const auto& [buf, per_sample] :
+       {Scratch{&ws.dlog, out}, Scratch{&ws.dc2, H}, Scratch{&ws.dc1, H}, Scratch{&ws.dd, dens}, Scratch{&ws.dh1, H},
+        Scratch{&ws.denc, E}, Scratch{&ws.t_enc, E}, Scratch{&ws.h1, H}, Scratch{&ws.cin, cin_w}, Scratch{&ws.c1, H},
+        Scratch{&ws.c2, H}, Scratch{&ws.logits, out}})
+    growTo(*buf, kTile * per_sample);
   std::vector<float> tdir(3 * kTile);
   float* gw = g.mlp.data();
   for (size_t t = 0; t < n_tiles; ++t) {
