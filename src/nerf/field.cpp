@@ -121,8 +121,10 @@ struct RadianceField::Workspace::Impl {
       logd /*[n]*/;
   // Per-tile scratch: activations of one tile (forward, and recomputed in backward), gradients.
   std::vector<float> h1, cin, c1, c2, logits, dlog, dc2, dc1, dd, dh1, denc, t_enc;
-  std::vector<float> geo;      // [n][kDensityOutputs]: density-network outputs (forwardColor's input)
-  std::vector<uint32_t> need;  // samples forwardColor evaluates
+  std::vector<float> geo;  // [n][kDensityOutputs]: density-network outputs (forwardColor's input)
+  // forwardColor: the samples it evaluates, and their inputs and colours compacted.
+  std::vector<uint32_t> need;
+  std::vector<float> need_geo, need_dir, need_rgb;
   std::vector<uint32_t> live;  // samples with a non-zero loss gradient
 };
 
@@ -402,39 +404,30 @@ void RadianceField::forwardDensity(Workspace& wsp, const float* pos, const float
 }
 
 void RadianceField::forwardColor(Workspace& wsp, const uint8_t* needed, float* rgb) const {
-  const Impl& f = *impl_;
   Workspace::Impl& ws = *wsp.impl_;
-  const size_t n = ws.n, H = size_t(f.H);
-  growTo(ws.cin, kTile * kColorIn);
-  growTo(ws.c1, kTile * H);
-  growTo(ws.c2, kTile * H);
-  growTo(ws.logits, kTile * kColorOutPadded);
-  std::vector<uint32_t>& idx = ws.need;
-  idx.clear();
-  for (size_t i = 0; i < n; ++i) {
-    if (!needed || needed[i]) {
-      idx.push_back(uint32_t(i));
-    } else {
-      ws.rgb[3 * i] = ws.rgb[3 * i + 1] = ws.rgb[3 * i + 2] = 0.f;
+  const size_t n = ws.n;
+  if (!needed) {
+    queryColor(ws.geo.data(), ws.dir.data(), n, ws.rgb.data());
+  } else {
+    // The needed samples, compacted in order (queryColor's rows are independent, so compacting them
+    // does not change a sample's bits); the others get rgb 0.
+    std::vector<uint32_t>& idx = ws.need;
+    idx.clear();
+    for (size_t i = 0; i < n; ++i)
+      if (needed[i]) idx.push_back(uint32_t(i));
+    const size_t m = idx.size();
+    growTo(ws.need_geo, m * kDensityOutputs);
+    growTo(ws.need_dir, 3 * m);
+    growTo(ws.need_rgb, 3 * m);
+    for (size_t j = 0; j < m; ++j) {
+      const size_t s = idx[j];
+      std::copy_n(ws.geo.begin() + long(s * kDensityOutputs), kDensityOutputs,
+                  ws.need_geo.begin() + long(j * kDensityOutputs));
+      std::copy_n(ws.dir.begin() + long(3 * s), 3, ws.need_dir.begin() + long(3 * j));
     }
-  }
-  // Tiles of needed samples in order (the rows of a tile are independent, so compacting them does
-  // not change a sample's bits).
-  float tdir[3 * kTile];
-  float* cin = ws.cin.data();
-  for (size_t j0 = 0; j0 < idx.size(); j0 += kTile) {
-    const size_t m = std::min(kTile, idx.size() - j0);
-    const uint32_t* ti = idx.data() + j0;
-    for (size_t i = 0; i < m; ++i) {
-      const size_t s = ti[i];
-      std::copy(ws.geo.begin() + long(s * kDensityOutputs), ws.geo.begin() + long((s + 1) * kDensityOutputs),
-                cin + i * kColorIn + kShCoeffs);
-      for (size_t k = 0; k < 3; ++k) tdir[3 * i + k] = ws.dir[3 * s + k];
-    }
-    shEncodeBatch(tdir, m, cin, kColorIn);
-    colorTile(f, m, cin, ws.c1.data(), ws.c2.data(), ws.logits.data());
-    for (size_t i = 0; i < m; ++i)
-      for (size_t k = 0; k < 3; ++k) ws.rgb[3 * size_t(ti[i]) + k] = sigmoid(ws.logits[i * kColorOutPadded + k]);
+    queryColor(ws.need_geo.data(), ws.need_dir.data(), m, ws.need_rgb.data());
+    std::fill(ws.rgb.begin(), ws.rgb.begin() + long(3 * n), 0.f);
+    for (size_t j = 0; j < m; ++j) std::copy_n(ws.need_rgb.begin() + long(3 * j), 3, ws.rgb.begin() + long(3 * idx[j]));
   }
   if (rgb) std::copy(ws.rgb.begin(), ws.rgb.begin() + long(3 * n), rgb);
 }

@@ -54,8 +54,9 @@ struct StageTimes {
 struct StepStats {
   double loss = 0;  // mean Huber loss per ray (sum over channels)
   int64_t rays = 0;
-  int64_t samples = 0;             // marched samples, each through the field's forward and backward
-  int64_t samples_composited = 0;  // of those, before their ray's transmittance fell below 1e-4
+  int64_t samples = 0;             // marched samples (the field's density for each)
+  int64_t samples_composited = 0;  // of those, before their ray's transmittance fell below 1e-4 (colour,
+                                   // and backward where their loss gradient is not zero)
   bool rolled_back = false;
   StageTimes times;  // seconds of wall time for this step, per stage
 };
