@@ -47,17 +47,17 @@ void AdamDenseImpl(float* HWY_RESTRICT param, float* HWY_RESTRICT m, float* HWY_
 // are updated (their own step counter selects the bias correction), the others keep their values.
 // Same operation order as adamEntry<2> (no FMA contraction), so every target gives its bits.
 size_t AdamSparseLevelImpl(float* HWY_RESTRICT p, float* HWY_RESTRICT m, float* HWY_RESTRICT v, float* HWY_RESTRICT g,
-                         uint64_t* HWY_RESTRICT touched, uint32_t* HWY_RESTRICT steps, size_t n, float lr,
-                         const AdamOptions& opt, const AdamBiasTable& bias) {
+                           uint64_t* HWY_RESTRICT touched, uint32_t* HWY_RESTRICT steps, size_t n, float lr,
+                           const AdamOptions& opt, const AdamBiasTable& bias, float grad_scale) {
   const hn::ScalableTag<float> df;
   const hn::RebindToUnsigned<decltype(df)> du;
   const size_t NL = hn::Lanes(df);
   const size_t K = NL / 2;  // entries per vector
-  if (K == 0) return adamSparseLevelScalar(p, m, v, g, touched, steps, n, lr, opt, bias);
+  if (K == 0) return adamSparseLevelScalar(p, m, v, g, touched, steps, n, lr, opt, bias, grad_scale);
   size_t updated = 0;
   const float b1 = float(opt.beta1), b2 = float(opt.beta2), eps = float(opt.epsilon);
   const auto vb1 = hn::Set(df, b1), vb2 = hn::Set(df, b2), va1 = hn::Set(df, 1.f - b1), va2 = hn::Set(df, 1.f - b2),
-             veps = hn::Set(df, eps), vlr = hn::Set(df, lr);
+             veps = hn::Set(df, eps), vlr = hn::Set(df, lr), vscale = hn::Set(df, grad_scale);
   HWY_ALIGN float c1[HWY_MAX_BYTES / 4], c2[HWY_MAX_BYTES / 4];
   HWY_ALIGN uint32_t mk[HWY_MAX_BYTES / 4];
   const size_t words = (n + 63) / 64;
@@ -92,7 +92,7 @@ size_t AdamSparseLevelImpl(float* HWY_RESTRICT p, float* HWY_RESTRICT m, float* 
         continue;
       }
       const auto mask = hn::RebindMask(df, hn::Ne(hn::Load(du, mk), hn::Zero(du)));
-      const auto gv = hn::LoadU(df, ge);
+      const auto gv = hn::Mul(hn::LoadU(df, ge), vscale);
       const auto p0 = hn::LoadU(df, p + 2 * e0), m0 = hn::LoadU(df, m + 2 * e0), v0 = hn::LoadU(df, v + 2 * e0);
       const auto m1 = hn::Add(hn::Mul(vb1, m0), hn::Mul(va1, gv));
       const auto v1 = hn::Add(hn::Mul(vb2, v0), hn::Mul(hn::Mul(va2, gv), gv));
@@ -136,7 +136,7 @@ void adamDense(float* param, float* m, float* v, const float* grad, size_t n, ui
 }
 
 size_t adamSparseLevelScalar(float* p, float* m, float* v, float* g, uint64_t* touched, uint32_t* steps, size_t n,
-                           float lr, const AdamOptions& opt, const AdamBiasTable& bias) {
+                             float lr, const AdamOptions& opt, const AdamBiasTable& bias, float grad_scale) {
   const size_t words = (n + 63) / 64;
   size_t updated = 0;
   for (size_t w = 0; w < words; ++w) {
@@ -146,9 +146,10 @@ size_t adamSparseLevelScalar(float* p, float* m, float* v, float* g, uint64_t* t
       const size_t e = w * 64 + size_t(__builtin_ctzll(bits));
       bits &= bits - 1;
       float* ge = g + 2 * e;
-      const float gs[2] = {ge[0], ge[1]};
+      const bool zero = ge[0] == 0.f && ge[1] == 0.f;
+      const float gs[2] = {ge[0] * grad_scale, ge[1] * grad_scale};
       ge[0] = ge[1] = 0.f;
-      if (gs[0] == 0.f && gs[1] == 0.f) continue;
+      if (zero) continue;
       adamEntry<2>(p + 2 * e, m + 2 * e, v + 2 * e, gs, steps + e, lr, opt, bias);
       ++updated;
     }
@@ -157,8 +158,8 @@ size_t adamSparseLevelScalar(float* p, float* m, float* v, float* g, uint64_t* t
 }
 
 size_t adamSparseLevel(float* p, float* m, float* v, float* g, uint64_t* touched, uint32_t* steps, size_t n, float lr,
-                     const AdamOptions& opt, const AdamBiasTable& bias) {
-  return HWY_DYNAMIC_DISPATCH(AdamSparseLevelImpl)(p, m, v, g, touched, steps, n, lr, opt, bias);
+                       const AdamOptions& opt, const AdamBiasTable& bias, float grad_scale) {
+  return HWY_DYNAMIC_DISPATCH(AdamSparseLevelImpl)(p, m, v, g, touched, steps, n, lr, opt, bias, grad_scale);
 }
 
 void adamDenseScalar(float* param, float* m, float* v, const float* grad, size_t n, uint64_t t, float lr,

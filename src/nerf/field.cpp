@@ -238,9 +238,15 @@ GemmArgs mm(size_t M, size_t N, size_t K, const float* a, size_t a_ms, size_t a_
   return g;
 }
 
-// Grows a scratch buffer to at least `size` (never shrinks: buffers are reused across calls).
-inline void growTo(std::vector<float>& v, size_t size) {
-  if (v.size() < size) v.resize(size);
+// Grows a buffer to at least `size`, keeping its contents (never shrinks: buffers are reused across
+// calls). Capacity grows to size + 1/8, not to std::vector's 2x: the sample count of a training step
+// varies a little from step to step, and doubling a buffer of 2^17 samples x 32 floats on the first
+// step that is one sample larger than the last would hold ~100 MB that is never used.
+template <class T>
+inline void growTo(std::vector<T>& v, size_t size) {
+  if (v.size() >= size) return;
+  if (v.capacity() < size) v.reserve(size + size / 8);
+  v.resize(size);
 }
 
 inline float sigmoid(float x) { return 1.f / (1.f + std::exp(-x)); }
@@ -455,8 +461,8 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
   g.seg_begin.push_back(seg0);
   g.seg_denc.push_back(denc0);
   g.n += nl;
-  if (g.pos.size() < 3 * g.n) g.pos.resize(3 * g.n);
-  if (g.denc.size() < denc0 + E * nl) g.denc.resize(denc0 + E * nl);
+  growTo(g.pos, 3 * g.n);
+  growTo(g.denc, denc0 + E * nl);
   for (size_t j = 0; j < nl; ++j)
     std::copy(ws.pos.begin() + long(3 * live[j]), ws.pos.begin() + long(3 * live[j] + 3),
               g.pos.begin() + long(3 * (seg0 + j)));
@@ -558,7 +564,13 @@ static void scatterLevel(const RadianceField::Impl& f, const RadianceField::Grad
 // ---------------------------------------------------------------------------------------------
 // Optimiser.
 
-void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, int n_threads) {
+void RadianceField::clearGradients(Gradients& grads) const {
+  Gradients::Impl& g = *grads.impl_;
+  g.clear();
+  std::fill(g.mlp.begin(), g.mlp.end(), 0.f);
+}
+
+void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, int n_threads, float grad_scale) {
   Impl& f = *impl_;
   for (const Gradients* g : per_thread)
     if (!g || g->impl_->n_entries != f.n_entries || g->impl_->mlp.size() != f.n_mlp)
@@ -571,6 +583,7 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
     for (size_t i = 0; i < f.n_mlp; ++i) f.mlp_grad_sum[i] += src[i];
     std::fill(src, src + f.n_mlp, 0.f);
   }
+  for (float& x : f.mlp_grad_sum) x *= grad_scale;
   const uint64_t t_mlp = f.mlpStep() + 1;
   f.setMlpStep(t_mlp);
   adamDense(f.mlp.data(), f.mlp_m.data(), f.mlp_v.data(), f.mlp_grad_sum.data(), f.n_mlp, t_mlp, lr, f.cfg.adam,
@@ -604,7 +617,7 @@ void RadianceField::step(const std::vector<Gradients*>& per_thread, float lr, in
       updated[size_t(w)] +=
           adamSparseLevel(f.table.data() + 2 * size_t(lv.offset), f.table_m.data() + 2 * size_t(lv.offset),
                           f.table_v.data() + 2 * size_t(lv.offset), sc.grad.data(), sc.touched.data(),
-                          f.table_steps.data() + lv.offset, lv.size, lr, f.cfg.adam, f.bias);
+                          f.table_steps.data() + lv.offset, lv.size, lr, f.cfg.adam, f.bias, grad_scale);
       scatter_ms[size_t(w)] += c1 - c0;
       adam_ms[size_t(w)] += threadCpuMs() - c1;
     }

@@ -137,7 +137,8 @@ struct Trainer::ThreadState {
     int used = 0;  // samples before early termination (those with a colour)
     float target[3], bg[3];
   };
-  std::vector<RayInfo> rays;
+  std::vector<RayInfo> rays;              // of the current chunk (offsets into the chunk's buffers)
+  int64_t num_rays = 0, num_samples = 0;  // of the step
   double loss = 0;
   int64_t composited = 0;
   std::vector<double> view_loss;  // per view: summed loss of this step's rays
@@ -316,14 +317,19 @@ StepStats Trainer::step() {
   const int budget = std::max(1, opt_.samples_per_step / T);
   const float delta = float(opt_.huber_delta);
 
-  // Phase A: sample rays, march, field forward, composite, loss gradient (unnormalised).
+  // Each thread draws rays until it holds `budget` samples, in chunks of about samples_per_chunk:
+  // march, field forward, composite, loss gradient and field backward of a chunk before the next, so
+  // the activations the backward reads are held for one chunk, not for the whole step. The
+  // gradients are of the summed per-ray loss; step() scales them by 1/rays (the mean per ray).
+  const int chunk = std::max(1, std::min(budget, opt_.samples_per_chunk));
   parallelRun(T, [&](int ti) {
     ThreadState& ts = *threads_[size_t(ti)];
     ts.times = StageTimes{};
     ts.loss = 0;
     ts.composited = 0;
-    ts.rays.clear();
-    const size_t cap = size_t(budget);
+    ts.num_rays = 0;
+    ts.num_samples = 0;
+    const size_t cap = size_t(chunk + opt_.max_samples_per_ray);
     for (auto* v : {&ts.pos, &ts.dir, &ts.fpos, &ts.rgb, &ts.d_rgb}) v->resize(3 * cap);
     for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
     std::uniform_real_distribution<float> u01(0.f, 1.f);
@@ -333,47 +339,63 @@ StepStats Trainer::step() {
       pick_weighted = std::discrete_distribution<size_t>(view_weights_.begin(), view_weights_.end());
     ts.view_loss.assign(views_.size(), 0.0);
     ts.view_rays.assign(views_.size(), 0);
-    auto t0 = Clock::now();
-    int used = 0;
-    for (int attempts = 0; used < budget && attempts < budget; ++attempts) {
-      const size_t vi = view_weights_.empty() ? pick_uniform(ts.rng) : pick_weighted(ts.rng);
-      const ImageData& im = images_[vi];
-      const int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
-      const int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
-      const float ju = u01(ts.rng) - 0.5f, jv = u01(ts.rng) - 0.5f, jt = u01(ts.rng);
-      float bg[3] = {1.f, 1.f, 1.f};
-      if (opt_.random_background)
-        for (float& b : bg) b = u01(ts.rng);
-      const RayGenerator gen(views_[vi].camera, views_[vi].T_world_cam, model_.scene);
-      const Ray ray = gen.ray(px + ju, py + jv);
-      RayMarcher marcher(ray, *model_.grid, model_.scene, march, jt);
-      const int room = std::min(opt_.max_samples_per_ray, budget - used);
-      const int n = marcher.next(room, ts.pos.data() + 3 * used, ts.t.data() + used, ts.dt.data() + used);
-      if (n == 0) continue;
-      if (!marcher.done() && n == room && room < opt_.max_samples_per_ray) break;  // would be truncated
-      ThreadState::RayInfo ri;
-      ri.offset = used;
-      ri.count = n;
-      ri.view = int(vi);
-      const uint8_t* px_rgba = im.rgba.data() + (size_t(py) * im.width + px) * 4;
-      const float a = px_rgba[3] / 255.f;
-      for (int c = 0; c < 3; ++c) {
-        ri.bg[c] = bg[c];
-        ri.target[c] = px_rgba[c] / 255.f * a + bg[c] * (1.f - a);
+    int total = 0, attempts = 0;
+    bool full = false;
+    while (!full && total < budget) {
+      // March rays into this chunk.
+      auto t0 = Clock::now();
+      ts.rays.clear();
+      int used = 0;
+      while (used < chunk) {
+        if (total + used >= budget || attempts >= budget) {
+          full = true;
+          break;
+        }
+        ++attempts;
+        const size_t vi = view_weights_.empty() ? pick_uniform(ts.rng) : pick_weighted(ts.rng);
+        const ImageData& im = images_[vi];
+        const int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
+        const int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
+        const float ju = u01(ts.rng) - 0.5f, jv = u01(ts.rng) - 0.5f, jt = u01(ts.rng);
+        float bg[3] = {1.f, 1.f, 1.f};
+        if (opt_.random_background)
+          for (float& b : bg) b = u01(ts.rng);
+        const RayGenerator gen(views_[vi].camera, views_[vi].T_world_cam, model_.scene);
+        const Ray ray = gen.ray(px + ju, py + jv);
+        RayMarcher marcher(ray, *model_.grid, model_.scene, march, jt);
+        const int room = std::min(opt_.max_samples_per_ray, budget - total - used);
+        const int n = marcher.next(room, ts.pos.data() + 3 * used, ts.t.data() + used, ts.dt.data() + used);
+        if (n == 0) continue;
+        if (!marcher.done() && n == room && room < opt_.max_samples_per_ray) {  // would be truncated
+          full = true;
+          break;
+        }
+        ThreadState::RayInfo ri;
+        ri.offset = used;
+        ri.count = n;
+        ri.view = int(vi);
+        const uint8_t* px_rgba = im.rgba.data() + (size_t(py) * im.width + px) * 4;
+        const float a = px_rgba[3] / 255.f;
+        for (int c = 0; c < 3; ++c) {
+          ri.bg[c] = bg[c];
+          ri.target[c] = px_rgba[c] / 255.f * a + bg[c] * (1.f - a);
+        }
+        for (int k = 0; k < n; ++k) {
+          float* d = ts.dir.data() + 3 * (used + k);
+          d[0] = ray.dir.x();
+          d[1] = ray.dir.y();
+          d[2] = ray.dir.z();
+        }
+        ts.rays.push_back(ri);
+        used += n;
       }
-      for (int k = 0; k < n; ++k) {
-        float* d = ts.dir.data() + 3 * (used + k);
-        d[0] = ray.dir.x();
-        d[1] = ray.dir.y();
-        d[2] = ray.dir.z();
-      }
-      ts.rays.push_back(ri);
-      used += n;
-    }
-    ts.times.march = since(t0);
-    t0 = Clock::now();
-    model_.toFieldCoords(ts.pos.data(), size_t(used), ts.fpos.data());
-    if (used > 0) {
+      ts.times.march += since(t0);
+      if (used == 0) break;
+      total += used;
+      ts.num_rays += int64_t(ts.rays.size());
+
+      t0 = Clock::now();
+      model_.toFieldCoords(ts.pos.data(), size_t(used), ts.fpos.data());
       // Density of every sample, then colour only where the composite will read it: up to each
       // ray's early termination (the rest, ~40 % of the samples, get zero gradients anyway).
       model_.field->forwardDensity(ts.ws, ts.fpos.data(), ts.dir.data(), size_t(used), ts.sigma.data());
@@ -383,37 +405,44 @@ StepStats Trainer::step() {
         std::fill(ts.needed.begin() + ri.offset, ts.needed.begin() + ri.offset + ri.used, uint8_t(1));
       }
       model_.field->forwardColor(ts.ws, ts.needed.data(), ts.rgb.data());
+      ts.times.field_forward += since(t0);
+
+      t0 = Clock::now();
+      for (const auto& ri : ts.rays) {
+        const int o = ri.offset;
+        const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o,
+                                                   ts.dt.data() + o, ts.t.data() + o, ri.bg);
+        if (r.used != ri.used)  // the same arithmetic on the same densities: a bug if ever different
+          fail(fmt::format("NeRF training: composite used {} samples of a ray, the colour pass {}", r.used, ri.used));
+        float d_color[3];
+        const double ray_loss = huberLoss3(r.rgb, ri.target, delta, d_color);
+        ts.loss += ray_loss;
+        ts.composited += r.used;
+        ts.view_loss[size_t(ri.view)] += ray_loss;
+        ++ts.view_rays[size_t(ri.view)];
+        compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o,
+                          ri.bg, r, d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
+      }
+      ts.times.composite += since(t0);
+
+      t0 = Clock::now();
+      model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads);
+      ts.times.field_backward += since(t0);
     }
-    ts.times.field_forward = since(t0);
-    t0 = Clock::now();
-    for (const auto& ri : ts.rays) {
-      const int o = ri.offset;
-      const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o,
-                                                 ts.t.data() + o, ri.bg);
-      if (r.used != ri.used)  // the same arithmetic on the same densities: a bug if ever different
-        fail(fmt::format("NeRF training: composite used {} samples of a ray, the colour pass {}", r.used, ri.used));
-      float d_color[3];
-      const double ray_loss = huberLoss3(r.rgb, ri.target, delta, d_color);
-      ts.loss += ray_loss;
-      ts.composited += r.used;
-      ts.view_loss[size_t(ri.view)] += ray_loss;
-      ++ts.view_rays[size_t(ri.view)];
-      compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o, ri.bg,
-                        r, d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
-    }
-    ts.times.composite = since(t0);
+    ts.num_samples = total;
   });
 
   double loss = 0;
   int64_t rays = 0, samples = 0;
   for (const auto& ts : threads_) {
     loss += ts->loss;
-    rays += int64_t(ts->rays.size());
-    if (!ts->rays.empty()) samples += ts->rays.back().offset + ts->rays.back().count;
+    rays += ts->num_rays;
+    samples += ts->num_samples;
     stats.samples_composited += ts->composited;
     stats.times.march = std::max(stats.times.march, ts->times.march);
     stats.times.field_forward = std::max(stats.times.field_forward, ts->times.field_forward);
     stats.times.composite = std::max(stats.times.composite, ts->times.composite);
+    stats.times.field_backward = std::max(stats.times.field_backward, ts->times.field_backward);
   }
   stats.rays = rays;
   stats.samples = samples;
@@ -433,31 +462,19 @@ StepStats Trainer::step() {
   if (!std::isfinite(loss)) {
     spdlog::warn("NeRF training diverged at step {} (loss {}); rolling back to the snapshot of step {}", step_, loss,
                  snap_step_);
+    for (auto& ts : threads_) model_.field->clearGradients(ts->grads);
     rollback();
     stats.rolled_back = true;
     ++step_;
     return stats;
   }
   if (rays > 0) {
-    // Phase B: field backward with the mean-per-ray loss.
+    // The mean-per-ray loss: step() scales the summed gradients by 1/rays.
     const float scale = 1.f / float(rays);
-    parallelRun(T, [&](int ti) {
-      ThreadState& ts = *threads_[size_t(ti)];
-      auto t0 = Clock::now();
-      const size_t n = ts.rays.empty() ? 0 : size_t(ts.rays.back().offset + ts.rays.back().count);
-      if (n > 0) {
-        for (size_t i = 0; i < n; ++i) ts.d_sigma[i] *= scale;
-        for (size_t i = 0; i < 3 * n; ++i) ts.d_rgb[i] *= scale;
-        model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads);
-      }
-      ts.times.field_backward = since(t0);
-    });
-    for (const auto& ts : threads_)
-      stats.times.field_backward = std::max(stats.times.field_backward, ts->times.field_backward);
     auto t0 = Clock::now();
     std::vector<RadianceField::Gradients*> grads;
     for (auto& ts : threads_) grads.push_back(&ts->grads);
-    model_.field->step(grads, float(learningRate()), T);
+    model_.field->step(grads, float(learningRate()), T, scale);
     stats.times.optimizer = since(t0);
     // A NaN that the forward pass hides (e.g. behind a ReLU) still shows in the MLP weights after the
     // update; they are small (~10^4 floats), so they are checked every step. The hash grid is

@@ -4,6 +4,8 @@
 //   NERFSLAM_BENCH_WARMUP_STEPS=N: training steps before measuring (default 200)
 //   NERFSLAM_BENCH_SAMPLES_PER_STEP=N: the trainer's target samples per step (default: TrainOptions',
 //     2^16; the paper's batch, as instant-ngp's target_batch_size, is 2^18)
+//   NERFSLAM_BENCH_SAMPLES_PER_CHUNK=N: samples a thread evaluates and back-propagates at a time
+//     (default: TrainOptions', 2^14; a value >= the step's samples is one chunk per thread)
 //
 // Counters of BM_TrainStep (per step unless named otherwise):
 //   samples_per_s      ray samples per wall second (the machine is shared: see samples_per_cpu_s)
@@ -68,6 +70,7 @@ Setup& setup() {
     nerf::TrainOptions o;
     o.threads = 2;
     if (const char* sps = std::getenv("NERFSLAM_BENCH_SAMPLES_PER_STEP")) o.samples_per_step = std::atoi(sps);
+    if (const char* spc = std::getenv("NERFSLAM_BENCH_SAMPLES_PER_CHUNK")) o.samples_per_chunk = std::atoi(spc);
     r.trainer = std::make_unique<nerf::Trainer>(*r.model, r.views, o);
     // Warm-up: past the first grid updates and into the regime of a 60 s run (rays terminate,
     // the grid is sparse). NERFSLAM_BENCH_WARMUP_STEPS overrides the default 200.

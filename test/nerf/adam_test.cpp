@@ -107,22 +107,24 @@ TEST(Adam, SparseLevelSimdMatchesScalarAndEntryRule) {
       }
     }
   }
-  // Reference: adamEntry<2> entry by entry.
+  // Reference: adamEntry<2> entry by entry, on the scaled gradient (the trainer passes 1/rays).
+  const float kScale = 1.f / 4093.f;
   std::vector<float> pr(p0), mr(m0), vr(v0);
   std::vector<uint32_t> sr(s0);
   for (size_t e = 0; e < n; ++e) {
     if (!((t0[e / 64] >> (e % 64)) & 1)) continue;
     if (g0[2 * e] == 0.f && g0[2 * e + 1] == 0.f) continue;
-    adamEntry<2>(&pr[2 * e], &mr[2 * e], &vr[2 * e], &g0[2 * e], &sr[e], 1e-2f, opt, bias);
+    const float gs[2] = {g0[2 * e] * kScale, g0[2 * e + 1] * kScale};
+    adamEntry<2>(&pr[2 * e], &mr[2 * e], &vr[2 * e], gs, &sr[e], 1e-2f, opt, bias);
   }
   auto check = [&](bool simd) {
     std::vector<float> p(p0), m(m0), v(v0), g(g0);
     std::vector<uint32_t> st(s0);
     std::vector<uint64_t> t(t0);
     if (simd)
-      adamSparseLevel(p.data(), m.data(), v.data(), g.data(), t.data(), st.data(), n, 1e-2f, opt, bias);
+      adamSparseLevel(p.data(), m.data(), v.data(), g.data(), t.data(), st.data(), n, 1e-2f, opt, bias, kScale);
     else
-      adamSparseLevelScalar(p.data(), m.data(), v.data(), g.data(), t.data(), st.data(), n, 1e-2f, opt, bias);
+      adamSparseLevelScalar(p.data(), m.data(), v.data(), g.data(), t.data(), st.data(), n, 1e-2f, opt, bias, kScale);
     EXPECT_EQ(st, sr);
     for (uint64_t w : t) ASSERT_EQ(w, 0u);
     for (float x : g) ASSERT_EQ(x, 0.f);

@@ -69,11 +69,13 @@ inline void adamEntry(float* p, float* m, float* v, const float* g, uint32_t* st
 // Sparse update of a run of n entries with 2 features (one hash-grid level): every entry e whose
 // bit is set in `touched` and whose summed gradient (g[2e], g[2e+1]) is not exactly zero gets
 // adamEntry<2> (entries with a zero sum are skipped, as tiny-cuda-nn does). g and touched are
-// cleared on the way (ready for the next step). Returns the number of entries updated. Dispatched SIMD version and scalar reference;
-// both give the same bits as adamEntry<2> entry by entry.
+// cleared on the way (ready for the next step). The gradient used is g * grad_scale (the trainer
+// sums unnormalised per-ray gradients and passes 1/rays here); whether an entry is skipped is decided
+// on g itself. Returns the number of entries updated. Dispatched SIMD version and scalar reference;
+// both give the same bits as adamEntry<2> on (g * grad_scale) entry by entry.
 size_t adamSparseLevel(float* p, float* m, float* v, float* g, uint64_t* touched, uint32_t* steps, size_t n, float lr,
-                     const AdamOptions& opt, const AdamBiasTable& bias);
+                       const AdamOptions& opt, const AdamBiasTable& bias, float grad_scale = 1.f);
 size_t adamSparseLevelScalar(float* p, float* m, float* v, float* g, uint64_t* touched, uint32_t* steps, size_t n,
-                           float lr, const AdamOptions& opt, const AdamBiasTable& bias);
+                             float lr, const AdamOptions& opt, const AdamBiasTable& bias, float grad_scale = 1.f);
 
 }  // namespace nerfslam::nerf

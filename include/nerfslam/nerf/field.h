@@ -164,8 +164,12 @@ class RadianceField {
   // Sums the per-thread gradients in the given order (deterministic), applies Adam with learning
   // rate `lr` (see adam.h for the sparse update rule), and clears the gradients. Only hash entries
   // some thread touched are updated. n_threads workers split the entries; the result does not
-  // depend on n_threads.
-  void step(const std::vector<Gradients*>& per_thread, float lr, int n_threads = 1);
+  // depend on n_threads. The summed gradients are multiplied by grad_scale first (a trainer that
+  // back-propagates unnormalised per-ray losses, before it knows how many rays the step has, passes
+  // 1/rays).
+  void step(const std::vector<Gradients*>& per_thread, float lr, int n_threads = 1, float grad_scale = 1.f);
+  // Drops what backward() accumulated in `grads` since the last step() (a step that is abandoned).
+  void clearGradients(Gradients& grads) const;
   // The accumulated (not yet applied) gradients of `grads`, named like parameters(), for tests
   // and diagnostics.
   std::vector<FloatArray> gradients(Gradients& grads) const;

@@ -31,6 +31,10 @@ struct TrainOptions {
   // ~50-70 ms (>= 15 steps/s) and each thread's sample buffers (positions, directions, field
   // activations: ~2.5 KB per sample) inside L3. Rays per step adapt so the sample count stays constant.
   int samples_per_step = 1 << 16;
+  // A thread marches, evaluates and back-propagates its samples in chunks of about this many (plus
+  // at most one ray): the activations kept for the backward pass are a chunk's, so memory does not
+  // grow with samples_per_step (~430 bytes per sample: 7 MB per thread for a chunk of 2^14).
+  int samples_per_chunk = 1 << 14;
   int max_samples_per_ray = 1024;
   // Adam learning rate: lr * lr_decay_factor^k, k = number of lr_decay_interval boundaries passed
   // after lr_decay_start (instant-ngp's paper schedule is x0.33 at 20k steps and every 10k after).
@@ -64,6 +68,8 @@ struct TrainOptions {
   template <class V>
   void visit(V& v) {
     v("samples_per_step", samples_per_step, "Target ray samples per optimiser step", check::range(256, 1 << 22));
+    v("samples_per_chunk", samples_per_chunk, "Samples a thread evaluates and back-propagates at a time",
+      check::range(256, 1 << 22));
     v("max_samples_per_ray", max_samples_per_ray, "March samples per ray at most", check::range(16, 4096));
     v("lr", lr, "Adam learning rate", check::positive<double>());
     v("lr_decay_start", lr_decay_start, "Step of the first learning-rate decay", check::nonNegative<int>());
