@@ -32,6 +32,7 @@
 
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
+#include "nerfslam/mapping/observation_map.h"
 #include "nerfslam/tracking/frame.h"
 #include "nerfslam/tracking/tracker.h"
 
@@ -39,6 +40,7 @@ namespace nerfslam {
 
 using KeyframeId = int64_t;
 using PointId = int64_t;
+using ObservationMap = SortedVectorMap<KeyframeId, int>;
 constexpr PointId kNoPoint = -1;
 
 struct Keyframe {
@@ -59,7 +61,7 @@ struct MapPoint {
   Eigen::Vector3d position = Eigen::Vector3d::Zero();
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  // mean unit viewing direction (point - centre)
   cv::Mat descriptor;                                 // 1 x 32 CV_8U, the medoid of the observations
-  std::map<KeyframeId, int> observations;             // keyframe -> keypoint index
+  ObservationMap observations;                        // keyframe -> keypoint index, by keyframe
   KeyframeId first_keyframe = -1;
   int visible = 1;  // frames that should have seen it (tracking statistics)
   int found = 1;    // frames that matched it
@@ -78,8 +80,8 @@ struct MapUpdate {
 // they observe, as the tracker sees them (TrackingMapPoint::id is the PointId).
 struct TrackingLocalMap {
   KeyframeId ref = -1;
-  std::vector<KeyframeId> keyframes;  // ref first, then by decreasing covisibility, then the newest
-  std::vector<SE3> keyframe_poses;    // T_world_cam of `keyframes`
+  std::vector<KeyframeId> keyframes;     // ref first, then by decreasing covisibility, then the newest
+  std::vector<SE3> keyframe_poses;       // T_world_cam of `keyframes`
   std::vector<TrackingMapPoint> points;  // sorted by id
   // Keyframes observing points[i]: observers[observer_begin[i] .. observer_begin[i + 1]).
   std::vector<int> observer_begin;
