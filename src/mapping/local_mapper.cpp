@@ -31,10 +31,6 @@ int hamming(const uint8_t* a, const uint8_t* b, int bytes) {
   return d;
 }
 
-int descDist(const cv::Mat& a, int ra, const cv::Mat& b, int rb) {
-  return hamming(a.ptr<uint8_t>(ra), b.ptr<uint8_t>(rb), a.cols);
-}
-
 double levelScale(const Frame& f, int idx) {
   const int oct = std::max(0, f.keypoints[idx].octave);
   return oct < static_cast<int>(f.level_scale.size()) ? f.level_scale[oct] : std::pow(1.2, oct);
@@ -119,9 +115,21 @@ int LocalMapper::createNewPoints(KeyframeId id) {
     const bool has_epipole = c1_in_2.z() > 1e-9;
     const Eigen::Vector2d epipole = has_epipole ? Eigen::Vector2d((K * c1_in_2).hnormalized()) : Eigen::Vector2d(0, 0);
 
-    std::vector<int> free2;
+    // The free keypoints of kf2 in index order, which is by pyramid level (extractFrame appends
+    // level after level), with what the inner loop reads: position, level, epipolar bound.
+    struct Candidate {
+      int j, octave;
+      double x, y, max_e2, s2;
+    };
+    std::vector<Candidate> free2;
     for (size_t j = 0; j < f2.size(); ++j)
-      if (kf2.points[j] == kNoPoint) free2.push_back(static_cast<int>(j));
+      if (kf2.points[j] == kNoPoint) {
+        const double s2 = levelScale(f2, static_cast<int>(j));
+        free2.push_back({static_cast<int>(j), f2.keypoints[j].octave, f2.undistorted[j].x(), f2.undistorted[j].y(),
+                         opt_.epipolar_chi2 * s2 * s2, s2});
+      }
+    const bool by_level = std::is_sorted(free2.begin(), free2.end(),
+                                         [](const Candidate& a, const Candidate& b) { return a.octave < b.octave; });
     std::vector<int> best_for_1(f1.size(), -1), best_dist_1(f1.size(), 256);
     std::unordered_map<int, std::pair<int, int>> best_for_2;  // j -> (i, dist)
     for (size_t i = 0; i < f1.size(); ++i) {
@@ -130,17 +138,24 @@ int LocalMapper::createNewPoints(KeyframeId id) {
       const double ln = std::hypot(l.x(), l.y());
       if (!(ln > 0)) continue;
       const int oct1 = f1.keypoints[i].octave;
+      const uint8_t* d1 = f1.descriptors.ptr<uint8_t>(static_cast<int>(i));
+      // Candidates within one level of oct1: a contiguous run when sorted by level.
+      auto first = free2.begin(), last = free2.end();
+      if (by_level) {
+        first = std::lower_bound(free2.begin(), free2.end(), oct1 - 1,
+                                 [](const Candidate& c, int o) { return c.octave < o; });
+        last = std::upper_bound(first, free2.end(), oct1 + 1, [](int o, const Candidate& c) { return o < c.octave; });
+      }
       int best = opt_.max_descriptor_distance + 1, best_j = -1;
-      for (int j : free2) {
-        if (std::abs(f2.keypoints[j].octave - oct1) > 1) continue;
-        const double s2 = levelScale(f2, j);
-        const double e = l.dot(f2.undistorted[j].homogeneous()) / ln;
-        if (e * e > opt_.epipolar_chi2 * s2 * s2) continue;
-        const int d = descDist(f1.descriptors, static_cast<int>(i), f2.descriptors, j);
+      for (auto c = first; c != last; ++c) {
+        if (std::abs(c->octave - oct1) > 1) continue;
+        const double e = (l.x() * c->x + l.y() * c->y + l.z()) / ln;
+        if (e * e > c->max_e2) continue;
+        const int d = descriptorDistance(d1, f2.descriptors.ptr<uint8_t>(c->j));
         if (d >= best) continue;
-        if (has_epipole && (f2.undistorted[j] - epipole).squaredNorm() < 100 * s2 * s2) continue;
+        if (has_epipole && (Eigen::Vector2d(c->x, c->y) - epipole).squaredNorm() < 100 * c->s2 * c->s2) continue;
         best = d;
-        best_j = j;
+        best_j = c->j;
       }
       if (best_j < 0) continue;
       best_for_1[i] = best_j;
