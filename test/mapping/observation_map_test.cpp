@@ -48,7 +48,9 @@ TEST(SortedVectorMap, BehavesAsStdMapUnderRandomOperations) {
       }
       case 4:
         ASSERT_EQ(flat.count(k), ref.count(k));
-        if (ref.count(k)) ASSERT_EQ(flat.at(k), ref.at(k));
+        if (ref.count(k)) {
+          ASSERT_EQ(flat.at(k), ref.at(k));
+        }
         break;
       default:
         if (std::uniform_int_distribution<int>(0, 200)(rng) == 0) {

@@ -236,7 +236,9 @@ TEST(Trainer, ChunkedStepsMatchOneChunkPerThread) {
     ASSERT_EQ(sa.rays, sb.rays) << "step " << i;
     ASSERT_EQ(sa.samples, sb.samples) << "step " << i;
     ASSERT_GT(sa.samples, 7000);
-    if (i == 0) EXPECT_EQ(sa.loss, sb.loss);  // same model, same rays, same per-ray sums
+    if (i == 0) {
+      EXPECT_EQ(sa.loss, sb.loss);  // same model, same rays, same per-ray sums
+    }
     max_rel_loss = std::max(max_rel_loss, std::abs(sa.loss - sb.loss) / sa.loss);
   }
   EXPECT_LT(max_rel_loss, 1e-3);
