@@ -4,7 +4,6 @@
 #include <array>
 #include <chrono>
 #include <cmath>
-#include <cstring>
 #include <map>
 #include <set>
 #include <unordered_map>
@@ -17,19 +16,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
-
-int hamming(const uint8_t* a, const uint8_t* b, int bytes) {
-  int d = 0;
-  int i = 0;
-  for (; i + 8 <= bytes; i += 8) {
-    uint64_t x, y;
-    std::memcpy(&x, a + i, 8);
-    std::memcpy(&y, b + i, 8);
-    d += __builtin_popcountll(x ^ y);
-  }
-  for (; i < bytes; ++i) d += __builtin_popcount(static_cast<unsigned>(a[i] ^ b[i]));
-  return d;
-}
 
 double levelScale(const Frame& f, int idx) {
   const int oct = std::max(0, f.keypoints[idx].octave);
@@ -249,7 +235,7 @@ int LocalMapper::fuseWithNeighbours(KeyframeId id) {
       for (int c : cands) {
         const double s = levelScale(f, c);
         if ((f.undistorted[c] - ideal).squaredNorm() > 5.99 * s * s) continue;
-        const int d = hamming(p.descriptor.ptr<uint8_t>(), f.descriptors.ptr<uint8_t>(c), f.descriptors.cols);
+        const int d = descriptorDistance(p.descriptor.ptr<uint8_t>(), f.descriptors.ptr<uint8_t>(c));
         if (d < best) {
           best = d;
           best_idx = c;
