@@ -11,6 +11,7 @@
 
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/timing.h"
+#include "nerfslam/tracking/fast.h"
 
 namespace nerfslam {
 namespace {
@@ -63,52 +64,37 @@ const CentroidOrientation& orientation() {
 }
 
 // FAST per level with an adaptive threshold per grid cell (ORB-SLAM's scheme): corners at the normal
-// threshold over the whole level, then, only in cells that hold fewer than their quota, at the
-// minimum threshold. Per cell the strongest corners are kept. (One pass at the minimum threshold
-// finds the same corners -- a FAST score does not depend on the threshold it was found with -- but
-// in textured images it costs several times more: almost every pixel passes the low threshold's
-// early rejection tests.)
+// threshold, and, only in cells that hold fewer than their quota of those, corners down to the
+// minimum threshold. Per cell the strongest corners are kept. One SIMD pass (detectFast) finds every
+// corner down to the minimum threshold with its score; a FAST score does not depend on the threshold
+// a corner is found with, so splitting that pass by score gives exactly the corners of a pass at the
+// normal threshold and of per-cell passes at the minimum one (as cv::FAST would find them).
 std::vector<cv::KeyPoint> detectLevel(const cv::Mat& img, int target, const FeatureOptions& opt) {
   std::vector<cv::KeyPoint> out;
   const int w = img.cols, h = img.rows;
   if (w <= 2 * kEdge + 2 || h <= 2 * kEdge + 2 || target <= 0) return out;
-  const cv::Rect roi(kEdge - 3, kEdge - 3, w - 2 * kEdge + 6, h - 2 * kEdge + 6);
   const int high = std::max(opt.min_fast_threshold, opt.fast_threshold);
   const int low = std::min(opt.min_fast_threshold, opt.fast_threshold);
   const int cell = opt.cell_size;
   const int cols = std::max(1, (w - 2 * kEdge + cell - 1) / cell);
   const int rows = std::max(1, (h - 2 * kEdge + cell - 1) / cell);
   std::vector<std::vector<cv::KeyPoint>> cells(static_cast<size_t>(cols * rows));
-  // Adds the corners found in `area` (a sub-rectangle of the level) that lie in `keep` to their
-  // cells; only those scoring under `below` (the others were found by the first pass).
-  auto detect = [&](const cv::Rect& area, const cv::Rect& keep, int threshold, float below,
-                    std::vector<cv::KeyPoint>* buf) {
-    buf->clear();
-    cv::FAST(img(area), *buf, threshold, true);
-    for (auto& k : *buf) {
-      if (k.response >= below) continue;
-      k.pt.x += area.x;
-      k.pt.y += area.y;
-      if (k.pt.x < kEdge || k.pt.y < kEdge || k.pt.x >= w - kEdge || k.pt.y >= h - kEdge) continue;
-      if (!keep.contains(k.pt)) continue;
-      const int cx = std::min(cols - 1, static_cast<int>((k.pt.x - kEdge) / cell));
-      const int cy = std::min(rows - 1, static_cast<int>((k.pt.y - kEdge) / cell));
-      cells[static_cast<size_t>(cy * cols + cx)].push_back(k);
-    }
-  };
-  std::vector<cv::KeyPoint> buf;
-  detect(roi, roi, high, std::numeric_limits<float>::infinity(), &buf);
-  // A cell's low-threshold corners, from its rectangle grown by 4 pixels (FAST's radius-3 circle
-  // and the 3x3 non-maximum suppression then see the same neighbours as in a pass over the whole
-  // level); only corners inside the cell are kept. Run where a cell's strong corners may not be
-  // enough, so the selection below is the one a single low-threshold pass would give.
-  std::vector<char> has_low(cells.size(), low >= high);
+  std::vector<std::vector<cv::KeyPoint>> weak(cells.size());  // low <= score < high
+  static thread_local std::vector<FastCorner> corners;
+  detectFast(img, cv::Rect(kEdge, kEdge, w - 2 * kEdge, h - 2 * kEdge), low, &corners);
+  for (const FastCorner& c : corners) {
+    const int cx = std::min(cols - 1, (c.x - kEdge) / cell);
+    const int cy = std::min(rows - 1, (c.y - kEdge) / cell);
+    const size_t i = static_cast<size_t>(cy * cols + cx);
+    (c.score >= high ? cells[i] : weak[i])
+        .emplace_back(static_cast<float>(c.x), static_cast<float>(c.y), 7.f, -1.f, static_cast<float>(c.score));
+  }
+  // A cell with no more strong corners than it may take also gets its weak ones.
+  std::vector<char> has_low(cells.size(), 0);
   auto needLow = [&](size_t c, size_t wanted) {
     if (has_low[c] || cells[c].size() > wanted) return;
     has_low[c] = 1;
-    const int cx = static_cast<int>(c) % cols, cy = static_cast<int>(c) / cols;
-    const cv::Rect r(kEdge + cx * cell, kEdge + cy * cell, cell, cell);
-    detect(cv::Rect(r.x - 4, r.y - 4, r.width + 8, r.height + 8) & roi, r, low, static_cast<float>(high), &buf);
+    cells[c].insert(cells[c].end(), weak[c].begin(), weak[c].end());
   };
   // Quota per cell; cells with fewer corners pass their unused quota on (two sweeps).
   int quota = std::max(1, (target + cols * rows - 1) / (cols * rows));
