@@ -148,16 +148,17 @@ void detectFast(const cv::Mat& image, const cv::Rect& area, int threshold, std::
   std::fill(buf.begin(), buf.begin() + std::ptrdiff_t(bstride), uint8_t(0));
   std::fill(buf.begin() + std::ptrdiff_t((h + 1) * bstride), buf.begin() + std::ptrdiff_t((h + 2) * bstride),
             uint8_t(0));
-  const auto rawRow = HWY_DYNAMIC_DISPATCH(FastRawRowImpl);
-  const auto nmsRow = HWY_DYNAMIC_DISPATCH(FastNmsRowImpl);
   const std::ptrdiff_t stride = std::ptrdiff_t(image.step1());
   for (size_t y = 1; y <= h; ++y) {
     uint8_t* row = buf.data() + y * bstride;
     row[0] = 0;
-    rawRow(image.ptr<uint8_t>(area.y + int(y) - 1) + area.x, stride, w, row + 1);
+    // Dispatched per call: a pointer taken before the first call would stay the target-choosing
+    // trampoline (CPUID on every row).
+    HWY_DYNAMIC_DISPATCH(FastRawRowImpl)(image.ptr<uint8_t>(area.y + int(y) - 1) + area.x, stride, w, row + 1);
     row[w + 1] = 0;
   }
-  for (size_t y = 1; y <= h; ++y) nmsRow(buf.data(), bstride, w, y, t, area.x, area.y, corners);
+  for (size_t y = 1; y <= h; ++y)
+    HWY_DYNAMIC_DISPATCH(FastNmsRowImpl)(buf.data(), bstride, w, y, t, area.x, area.y, corners);
 }
 
 int fastScoreReference(const uint8_t* centre, std::ptrdiff_t stride) {
