@@ -296,7 +296,29 @@ std::vector<Reconstruction> evaluateCandidates(const std::vector<RelativePose>& 
   const Eigen::Matrix3d Ki = K.inverse();
   const double th2 = reprojection_threshold_px * reprojection_threshold_px;
   std::vector<Reconstruction> recs;
-  for (const RelativePose& pose : candidates) {
+  // Candidates come in pairs (R, t) and (R, -t) (both decompositions give them). Their DLT systems
+  // differ by the sign of the last column, so the second's points are the first's negated (same
+  // reprojections and parallax, opposite depths): each pair is triangulated once.
+  std::vector<std::vector<Eigen::Vector3d>> triangulated(candidates.size());
+  for (size_t j = 0; j < candidates.size(); ++j) {
+    const RelativePose& pose = candidates[j];
+    const std::vector<Eigen::Vector3d>* mirror = nullptr;
+    for (size_t m = 0; m < j && !mirror; ++m)
+      if (candidates[m].R == pose.R && candidates[m].t == -pose.t) mirror = &triangulated[m];
+    std::vector<Eigen::Vector3d>& Xs = triangulated[j];
+    Xs.resize(x1.size());
+    for (size_t i = 0; i < x1.size(); ++i) {
+      if (!inliers[i]) continue;
+      if (mirror) {
+        Xs[i] = -(*mirror)[i];
+      } else {
+        const Eigen::Vector2d n1 = (Ki * h(x1[i])).hnormalized(), n2 = (Ki * h(x2[i])).hnormalized();
+        Xs[i] = triangulate(pose, n1, n2);
+      }
+    }
+  }
+  for (size_t j = 0; j < candidates.size(); ++j) {
+    const RelativePose& pose = candidates[j];
     Reconstruction r;
     r.pose = pose;
     r.points.assign(x1.size(), Eigen::Vector3d::Zero());
@@ -305,8 +327,7 @@ std::vector<Reconstruction> evaluateCandidates(const std::vector<RelativePose>& 
     const Eigen::Vector3d c2 = -pose.R.transpose() * pose.t;  // centre of camera 2 in camera 1
     for (size_t i = 0; i < x1.size(); ++i) {
       if (!inliers[i]) continue;
-      const Eigen::Vector2d n1 = (Ki * h(x1[i])).hnormalized(), n2 = (Ki * h(x2[i])).hnormalized();
-      const Eigen::Vector3d X = triangulate(pose, n1, n2);
+      const Eigen::Vector3d& X = triangulated[j][i];
       if (!X.allFinite()) continue;
       const Eigen::Vector3d X2 = pose.R * X + pose.t;
       const double cos_par = X.normalized().dot((X - c2).normalized());
