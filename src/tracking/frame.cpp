@@ -11,6 +11,7 @@
 
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/timing.h"
+#include "nerfslam/tracking/brief.h"
 #include "nerfslam/tracking/fast.h"
 
 namespace nerfslam {
@@ -258,18 +259,19 @@ Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOpti
   f.timings.fast_ms = msSince(t0);
 
   t0 = threadCpuMs();
-  static thread_local cv::Ptr<cv::ORB> orb =
-      cv::ORB::create(500, 1.2f, 1, kEdge, 0, 2, cv::ORB::HARRIS_SCORE, kPatchSize);
   std::vector<cv::Mat> level_desc(static_cast<size_t>(L));
+  cv::Mat smoothed;
   for (int l = 0; l < L; ++l) {
     auto& kps = level_kps[l];
+    if (kps.empty()) continue;
     for (size_t i = 0; i < kps.size(); ++i) {
       kps[i].angle = orientation().angle(f.pyramid[l], kps[i].pt);
       kps[i].octave = 0;
       kps[i].size = kPatchSize;
       kps[i].class_id = static_cast<int>(i);
     }
-    if (!kps.empty()) orb->compute(f.pyramid[l], kps, level_desc[l]);
+    smoothForBrief(f.pyramid[l], &smoothed);
+    computeBrief(smoothed, kps, &level_desc[l]);
   }
   size_t total = 0;
   for (int l = 0; l < L; ++l) total += level_kps[l].size();

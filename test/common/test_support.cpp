@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <random>
 
 namespace nerfslam::test {
 namespace fs = std::filesystem;
@@ -56,5 +57,13 @@ CommandResult runCommand(const std::string& command_line) {
 }
 
 CommandResult runCli(const std::string& args) { return runCommand("'" + cliPath().string() + "' " + args); }
+
+cv::Mat noiseImage(int w, int h, uint32_t seed) {
+  cv::Mat img(h, w, CV_8U);
+  std::mt19937 rng(seed);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) img.at<uint8_t>(y, x) = static_cast<uint8_t>(rng() & 255);
+  return img;
+}
 
 }  // namespace nerfslam::test

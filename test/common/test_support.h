@@ -2,8 +2,11 @@
 // Shared test helpers: where the shared data lives, temporary directories, running the CLI.
 #include <gtest/gtest.h>
 
+#include <cstdint>
 #include <filesystem>
 #include <string>
+
+#include <opencv2/core.hpp>
 
 namespace nerfslam::test {
 
@@ -38,6 +41,9 @@ struct CommandResult {
 CommandResult runCommand(const std::string& command_line);
 // Runs `nerfslam <args>` (args as one shell-quoted string) and captures its output and exit code.
 CommandResult runCli(const std::string& args);
+
+// A w x h 8-bit grey image of uniform random values (std::mt19937 seeded with `seed`).
+cv::Mat noiseImage(int w, int h, uint32_t seed);
 
 }  // namespace nerfslam::test
 

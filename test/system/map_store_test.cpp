@@ -309,19 +309,19 @@ struct SavedSmallMap {
 TEST(MapStore, RefusesAnotherFormatVersion) {
   SavedSmallMap s;
   json j = readJson(s.dir / "map.json");
-  for (int v : {0, 2}) {
+  for (int v : {kMapFormatVersion - 1, kMapFormatVersion + 1}) {
     j["format_version"] = v;
     test::writeText(s.dir / "map.json", j.dump());
     const std::string e = errorOf([&] { loadMapFolder(s.dir, s.camera); });
     EXPECT_NE(e.find("map.json: field 'format_version'"), std::string::npos) << e;
     EXPECT_NE(e.find("format version " + std::to_string(v)), std::string::npos) << e;
-    EXPECT_NE(e.find(v < 1 ? "older" : "newer"), std::string::npos) << e;
+    EXPECT_NE(e.find(v < kMapFormatVersion ? "older" : "newer"), std::string::npos) << e;
     // Nor is a map of another version overwritten by a save.
     const std::string es = errorOf([&] { saveMapFolder(s.dir, *s.map, s.camera, sparseOptions()); });
     EXPECT_NE(es.find("format_version"), std::string::npos) << es;
   }
   j["format"] = "something-else";
-  j["format_version"] = 1;
+  j["format_version"] = kMapFormatVersion;
   test::writeText(s.dir / "map.json", j.dump());
   const std::string e = errorOf([&] { loadMapFolder(s.dir); });
   EXPECT_NE(e.find("map.json: field 'format'"), std::string::npos) << e;

@@ -149,8 +149,8 @@ TEST_F(TrackingFaults, BlackFramesFrozenFrameAndGapAreReportedAndRecovered) {
   // Every pose the system gave (none for the black frames) agrees with ground truth.
   const double ate = atePercent();
   // Measured: 95 of 110 fed frames tracked, 0.42 %.
-  std::printf("tracked %zu of %zu fed frames, %d relocalisations, ATE %.3f %% of path\n",
-              sys_->trajectory().size(), fed_.size(), sys_->relocalizations(), ate);
+  std::printf("tracked %zu of %zu fed frames, %d relocalisations, ATE %.3f %% of path\n", sys_->trajectory().size(),
+              fed_.size(), sys_->relocalizations(), ate);
   EXPECT_LT(ate, 1.0);
 }
 
@@ -177,10 +177,22 @@ TEST_F(TrackingFaults, SuddenJumpIsLostThenRelocalisedWhenTheViewReturns) {
   EXPECT_LE(first_back, 62) << "not relocalised when the mapped view returned";
   sys_->finish();
   const double ate = atePercent();
-  std::printf("jump: %d of 15 unmapped frames lost, back at frame %d, ATE %.3f %% of path\n", lost, first_back, ate);
-  // Measured 0.96 %; frames 0..89 of the same orbit without the jump give 1.57 % (`nerfslam run
-  // --max-frames 90`: a short 1.1 m arc seen from a 0.4 m circle).
-  EXPECT_LT(ate, 2.0);
+  // The same frames 0..89 without the jump, in a fresh system: the jump must not cost accuracy.
+  // (A short 1.1 m arc seen from a 0.4 m circle, initialised from a homography: the reference
+  // itself measured 1.57 % with ORB descriptors and 2.21 % with ours.)
+  fed_.clear();
+  next_index_ = 0;
+  SystemOptions opt;
+  opt.nerf.enabled = false;
+  sys_ = std::make_unique<SlamSystem>(ds_->camera(), opt);
+  t = 0;
+  for (size_t i = 0; i < 90; ++i, t += dt) feed(i, t);
+  sys_->finish();
+  const double ate_reference = atePercent();
+  std::printf("jump: %d of 15 unmapped frames lost, back at frame %d, ATE %.3f %% of path (%.3f %% without the jump)\n",
+              lost, first_back, ate, ate_reference);
+  EXPECT_LT(ate_reference, 3.0);
+  EXPECT_LT(ate, ate_reference + 0.5);
 }
 
 }  // namespace

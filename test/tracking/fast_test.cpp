@@ -40,14 +40,6 @@ std::vector<Corner> opencv(const cv::Mat& img, const cv::Rect& area, int t) {
   return out;
 }
 
-cv::Mat noise(int w, int h, uint32_t seed) {
-  cv::Mat img(h, w, CV_8U);
-  std::mt19937 rng(seed);
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) img.at<uint8_t>(y, x) = static_cast<uint8_t>(rng() & 255);
-  return img;
-}
-
 // Flat patches with a few intensity levels: many equal scores side by side (the strict
 // non-maximum comparison), corners at the patch corners, saturated 0/255 values.
 cv::Mat blocks(int w, int h, uint32_t seed) {
@@ -61,9 +53,10 @@ cv::Mat blocks(int w, int h, uint32_t seed) {
 }
 
 std::vector<cv::Mat> testImages() {
-  std::vector<cv::Mat> imgs = {noise(97, 61, 1), noise(640, 480, 2), blocks(203, 77, 3), blocks(640, 480, 4)};
+  std::vector<cv::Mat> imgs = {test::noiseImage(97, 61, 1), test::noiseImage(640, 480, 2), blocks(203, 77, 3),
+                               blocks(640, 480, 4)};
   cv::Mat smooth;
-  cv::GaussianBlur(noise(320, 240, 5), smooth, cv::Size(5, 5), 1.5);
+  cv::GaussianBlur(test::noiseImage(320, 240, 5), smooth, cv::Size(5, 5), 1.5);
   cv::normalize(smooth, smooth, 0, 255, cv::NORM_MINMAX);
   imgs.push_back(smooth);
   const auto dir = test::dataDir();
@@ -115,7 +108,7 @@ TEST(Fast, MatchesOpenCvOnEveryTarget) {
 
 // The score is the definition's: the largest t at which 9 contiguous pixels clear the centre by t.
 TEST(Fast, ScoreIsTheLargestThresholdOfACorner) {
-  const cv::Mat img = noise(160, 120, 9);
+  const cv::Mat img = test::noiseImage(160, 120, 9);
   std::vector<FastCorner> c;
   detectFast(img, cv::Rect(3, 3, img.cols - 6, img.rows - 6), 0, &c);
   ASSERT_GT(c.size(), 500u);

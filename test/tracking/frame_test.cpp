@@ -5,6 +5,7 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "nerfslam/tracking/brief.h"
 #include "test_support.h"
 
 namespace nerfslam {
@@ -40,21 +41,26 @@ TEST(Frame, FeaturesSpreadOverRealImageWithConsistentDescriptors) {
   for (const auto& k : f.keypoints) ++per_level[static_cast<size_t>(k.octave)];
   for (int n : per_level) EXPECT_GT(n, 20);
 
-  // Level-0 descriptors equal OpenCV's ORB on the same keypoints and orientations.
-  std::vector<cv::KeyPoint> kps;
-  std::vector<int> idx;
-  for (size_t i = 0; i < f.size(); ++i)
-    if (f.keypoints[i].octave == 0) {
-      kps.push_back(f.keypoints[i]);
-      kps.back().class_id = static_cast<int>(i);
-      idx.push_back(static_cast<int>(i));
-    }
-  cv::Mat desc;
-  cv::ORB::create(500, 1.2f, 1, 19, 0, 2, cv::ORB::HARRIS_SCORE, 31)->compute(img, kps, desc);
-  ASSERT_EQ(kps.size(), idx.size());
-  for (size_t j = 0; j < kps.size(); ++j)
-    EXPECT_EQ(descriptorDistance(desc.ptr<uint8_t>(static_cast<int>(j)), f.descriptors.ptr<uint8_t>(kps[j].class_id)),
-              0);
+  // Descriptors of levels 0 and 2 equal computeBrief's on the smoothed level, at the keypoints'
+  // level positions and orientations.
+  for (int level : {0, 2}) {
+    std::vector<cv::KeyPoint> kps;
+    std::vector<int> idx;
+    const double s = f.level_scale[static_cast<size_t>(level)];
+    for (size_t i = 0; i < f.size(); ++i)
+      if (f.keypoints[i].octave == level) {
+        kps.push_back(f.keypoints[i]);
+        kps.back().pt = cv::Point2f(static_cast<float>(std::round(f.keypoints[i].pt.x / s)),
+                                    static_cast<float>(std::round(f.keypoints[i].pt.y / s)));
+        idx.push_back(static_cast<int>(i));
+      }
+    ASSERT_GT(kps.size(), 20u);
+    cv::Mat smoothed, desc;
+    smoothForBrief(f.pyramid[static_cast<size_t>(level)], &smoothed);
+    computeBrief(smoothed, kps, &desc);
+    for (size_t j = 0; j < kps.size(); ++j)
+      EXPECT_EQ(descriptorDistance(desc.ptr<uint8_t>(static_cast<int>(j)), f.descriptors.ptr<uint8_t>(idx[j])), 0);
+  }
 
   // featuresInArea agrees with brute force.
   const Eigen::Vector2d c(300, 200);

@@ -4,7 +4,7 @@
 // normals, descriptors, observations and tracking statistics), each keyframe's image (lossless PNG,
 // stored once), the camera, the system options and optionally a NeRF model.
 //
-// Layout of a map folder (format version kMapFormatVersion = 1):
+// Layout of a map folder (format version kMapFormatVersion = 2):
 //   map.json                       the manifest, written last: format, format_version, generation,
 //                                  created_utc, creator, counts, and "files": every data file of this
 //                                  generation with its role, size in bytes and CRC-32 (IEEE, as zlib)
@@ -49,7 +49,9 @@
 
 namespace nerfslam {
 
-constexpr int kMapFormatVersion = 1;
+// 2: keypoint and map-point descriptors are our steered BRIEF (tracking/brief.h); version 1 maps
+// hold cv::ORB descriptors, which do not match them.
+constexpr int kMapFormatVersion = 2;
 
 // Writes the NeRF model to the given path (e.g. nerf::saveModel); an exception aborts the save.
 using NerfModelWriter = std::function<void(const std::filesystem::path&)>;

@@ -1,11 +1,11 @@
 #pragma once
-// A tracked image: grey pyramid, FAST corners spread over a grid on every level, ORB (rBRIEF)
+// A tracked image: grey pyramid, FAST corners spread over a grid on every level, steered-BRIEF
 // descriptors computed on those corners, and their undistorted (ideal pinhole) positions.
 //
-// Descriptor choice: 256-bit rBRIEF (cv::ORB::compute on our own FAST corners, orientation by
-// intensity centroid). Binary descriptors match with a popcount Hamming distance, survive the
-// viewpoint changes of relocalisation far better than PTAM's fixed 8x8 patches, and need no
-// per-keyframe warping. Coordinates of keypoints are always level-0 pixels.
+// Descriptor choice: 256-bit steered BRIEF with a learned test pattern, as ORB's rBRIEF (brief.h;
+// orientation by intensity centroid). Binary descriptors match with a popcount Hamming distance,
+// survive the viewpoint changes of relocalisation far better than PTAM's fixed 8x8 patches, and
+// need no per-keyframe warping. Coordinates of keypoints are always level-0 pixels.
 #include <cstdint>
 #include <vector>
 

@@ -17,7 +17,7 @@ struct TrackingOptions {
   RelocalizerOptions relocalizer;
   template <class V>
   void visit(V& v) {
-    v("features", features, "FAST/ORB feature extraction");
+    v("features", features, "FAST corners and steered-BRIEF descriptors");
     v("initializer", initializer, "Two-view map initialisation");
     v("tracker", tracker, "Frame-to-map pose tracking");
     v("keyframes", keyframes, "Keyframe decision");
