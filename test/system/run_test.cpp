@@ -37,10 +37,18 @@ TEST(RunSystem, Kitti06First51TracksEveryFrameAccurately) {
   EXPECT_LT(rep.at("ate_percent_of_path").get<double>(), 0.15) << rep.dump(2);
   EXPECT_GT(rep.at("keyframes").get<int>(), 5);
   EXPECT_GT(rep.at("map_points").get<int>(), 1000);
-  for (const char* k :
-       {"tracking_ms_median", "tracking_ms_p99", "tracking_cpu_ms_median", "tracking_cpu_ms_p99", "ba_ms_median",
-        "ate_rmse_m", "ate_scale", "rpe_trans", "rpe_rot_deg"})
+  for (const char* k : {"tracking_ms_median", "tracking_ms_p99", "tracking_cpu_ms_median", "tracking_cpu_ms_p99",
+                        "ba_ms_median", "ate_rmse_m", "ate_scale", "rpe_trans", "rpe_rot_deg"})
     EXPECT_TRUE(rep.contains(k)) << k;
+  // The frames before the map existed and those tracked against it split the 51.
+  const int init_frames = rep.at("initialization_frames").get<int>();
+  EXPECT_GE(init_frames, 2);
+  EXPECT_LT(init_frames, 51);
+  EXPECT_GT(rep.at("initialization_cpu_ms_median").get<double>(), 0.0);
+  EXPECT_GE(rep.at("initialization_cpu_ms_max").get<double>(), rep.at("initialization_cpu_ms_median").get<double>());
+  EXPECT_GT(rep.at("tracking_cpu_ms_after_init_median").get<double>(), 0.0);
+  EXPECT_GE(rep.at("tracking_cpu_ms_after_init_p99").get<double>(),
+            rep.at("tracking_cpu_ms_after_init_median").get<double>());
   // 51 frames: one window of per-200-frame tracking cost, with CPU time <= wall time.
   ASSERT_EQ(rep.at("tracking_ms_windows").size(), 1u) << rep.dump(2);
   const auto& w = rep.at("tracking_ms_windows")[0];
@@ -97,8 +105,8 @@ void expectPhotoSetRegistered(const std::string& dataset, int views, double meas
   const auto rep = readReport(out.path());
   EXPECT_EQ(rep.at("frames_tracked").get<int>(), views) << r.output;
   EXPECT_EQ(rep.at("ate_matched").get<int>(), views);
-  EXPECT_LT(rep.at("ate_max_percent_of_extent").get<double>(), 2.0)
-      << "measured " << measured_max_percent << " %\n" << rep.dump(2);
+  EXPECT_LT(rep.at("ate_max_percent_of_extent").get<double>(), 2.0) << "measured " << measured_max_percent << " %\n"
+                                                                    << rep.dump(2);
 }
 
 TEST(RunSystem, StrechaFountainRegistersEveryView) {
@@ -177,8 +185,8 @@ TEST(RunSystem, CalibrationOfAnotherSizeIsAClearError) {
   const auto images = makeFolder(dir, 3, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(100)); });
   saveCameraYaml(Camera::pinhole(640, 480, 500, 500, 319.5, 239.5), dir / "wrong.yaml");
   const auto out = dir / "out";
-  const auto r = test::runCli("run --no-nerf --dataset folder:" + images.string() + " --camera " + (dir / "wrong.yaml").string() +
-                              " --out " + out.string());
+  const auto r = test::runCli("run --no-nerf --dataset folder:" + images.string() + " --camera " +
+                              (dir / "wrong.yaml").string() + " --out " + out.string());
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("error:"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("640"), std::string::npos) << r.output;
@@ -188,7 +196,8 @@ TEST(RunSystem, CalibrationOfAnotherSizeIsAClearError) {
 TEST(RunSystem, SequenceEndingBeforeInitialisation) {
   NERFSLAM_REQUIRE_DATA(data, "kitti06_first51");
   test::TempDir out;
-  const auto r = test::runCli("run --no-nerf --dataset kitti:" + data.string() + " --max-frames 1 --out " + out.path().string());
+  const auto r =
+      test::runCli("run --no-nerf --dataset kitti:" + data.string() + " --max-frames 1 --out " + out.path().string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(out.path());
   EXPECT_FALSE(rep.at("initialized").get<bool>());
