@@ -789,6 +789,12 @@ class NerfslamNode {
       points = map_points_;
       kfs = keyframes_;
     }
+    // The map's own counts, not those of the last published cloud: that is only refreshed when a
+    // frame arrives, so keyframes the mapping thread adds while no images come would not show.
+    if (const auto h = handle(); h && h->map) {
+      kfs = h->map->numKeyframes();
+      points = h->map->numPoints();
+    }
     const uint64_t dropped = queue_.dropped();
     if (state == "lost")
       s.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "tracking lost");
