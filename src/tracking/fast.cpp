@@ -140,11 +140,13 @@ void detectFast(const cv::Mat& image, const cv::Rect& area, int threshold, std::
   // corners of score 0 are never kept, so threshold 0 is threshold 1.
   const int t = std::clamp(threshold, 1, 254);
   const size_t w = size_t(area.width), h = size_t(area.height);
-  const size_t bstride = w + 2 + HWY_MAX_BYTES;
   // raw scores of the area with a zero frame; the bytes past the frame are read by the NMS's
-  // vectors but never used.
+  // vectors but never used. The padding is a constant, not HWY_MAX_BYTES: outside the per-target
+  // code that macro is the baseline target's (16 bytes), shorter than an AVX-512 vector.
+  constexpr size_t kPad = 256;  // the widest vector of any Highway target (SVE 2048-bit)
+  const size_t bstride = w + 2 + kPad;
   static thread_local std::vector<uint8_t> buf;
-  if (buf.size() < (h + 2) * bstride + HWY_MAX_BYTES) buf.resize((h + 2) * bstride + HWY_MAX_BYTES);
+  if (buf.size() < (h + 2) * bstride + kPad) buf.resize((h + 2) * bstride + kPad);
   std::fill(buf.begin(), buf.begin() + std::ptrdiff_t(bstride), uint8_t(0));
   std::fill(buf.begin() + std::ptrdiff_t((h + 1) * bstride), buf.begin() + std::ptrdiff_t((h + 2) * bstride),
             uint8_t(0));
