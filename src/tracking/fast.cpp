@@ -163,21 +163,10 @@ void detectFast(const cv::Mat& image, const cv::Rect& area, int threshold, std::
     HWY_DYNAMIC_DISPATCH(FastNmsRowImpl)(buf.data(), bstride, w, y, t, area.x, area.y, corners);
 }
 
-int fastScoreReference(const uint8_t* centre, std::ptrdiff_t stride) {
+int fastScore(const uint8_t* centre, std::ptrdiff_t stride) {
   std::ptrdiff_t off[16];
   fast_detail::circleOffsets(stride, off);
-  // Largest t with 9 contiguous circle pixels all > c + t or all < c - t.
-  int best = -1;
-  for (int s = 0; s < 16; ++s) {
-    int lo = 255, hi = -255;
-    for (int i = 0; i < 9; ++i) {
-      const int d = int(centre[off[(s + i) & 15]]) - int(centre[0]);
-      lo = std::min(lo, d);
-      hi = std::max(hi, d);
-    }
-    best = std::max({best, lo - 1, -hi - 1});
-  }
-  return std::max(best, -1);
+  return fast_detail::rawScore(centre, off) - 1;
 }
 
 }  // namespace nerfslam

@@ -113,7 +113,7 @@ TEST(Fast, ScoreIsTheLargestThresholdOfACorner) {
   detectFast(img, cv::Rect(3, 3, img.cols - 6, img.rows - 6), 0, &c);
   ASSERT_GT(c.size(), 500u);
   for (const FastCorner& k : c) {
-    ASSERT_EQ(k.score, fastScoreReference(&img.at<uint8_t>(k.y, k.x), static_cast<std::ptrdiff_t>(img.step1())));
+    ASSERT_EQ(k.score, fastScore(&img.at<uint8_t>(k.y, k.x), static_cast<std::ptrdiff_t>(img.step1())));
     // A corner at its score, not one above it.
     std::vector<cv::KeyPoint> at, above;
     const cv::Rect r(k.x - 3, k.y - 3, 7, 7);

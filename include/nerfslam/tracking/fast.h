@@ -29,8 +29,9 @@ struct FastCorner {
 // the result equals cv::FAST on the sub-image `area` grown by 3 pixels on every side.
 void detectFast(const cv::Mat& image, const cv::Rect& area, int threshold, std::vector<FastCorner>* corners);
 
-// The same score for one pixel, computed directly from its definition (for tests): -1 when the
-// pixel is not a corner at threshold 0. `centre` points at the pixel, `stride` is the row step.
-int fastScoreReference(const uint8_t* centre, std::ptrdiff_t stride);
+// The same score for one pixel, by the scalar code that finishes a row detectFast's vectors do not
+// cover: -1 when the pixel is not a corner at threshold 0. `centre` points at the pixel, `stride`
+// is the row step.
+int fastScore(const uint8_t* centre, std::ptrdiff_t stride);
 
 }  // namespace nerfslam
