@@ -80,17 +80,24 @@ HWY_EXPORT(SmoothColumnsImpl);
 HWY_EXPORT(SmoothRowImpl);
 
 void smoothForBrief(const cv::Mat& src, cv::Mat* dst) {
-  CV_Assert(src.type() == CV_8UC1);
-  src.copyTo(*dst);  // the 3-pixel border stays unsmoothed
-  if (src.rows < 7 || src.cols < 7) return;
+  CV_Assert(src.type() == CV_8UC1 && dst->data != src.data);
+  if (src.rows < 7 || src.cols < 7) {
+    src.copyTo(*dst);
+    return;
+  }
+  dst->create(src.size(), CV_8UC1);
+  // The 3-pixel border stays unsmoothed: copied, the rest written by the two passes.
+  for (int y : {0, 1, 2, src.rows - 3, src.rows - 2, src.rows - 1}) src.row(y).copyTo(dst->row(y));
   const size_t w = size_t(src.cols);
   static thread_local std::vector<int16_t> column;
   column.resize(w);
   for (int y = 3; y < src.rows - 3; ++y) {
     const uint8_t* rows[7];
     for (int k = 0; k < 7; ++k) rows[k] = src.ptr<uint8_t>(y + k - 3);
+    uint8_t* out = dst->ptr<uint8_t>(y);
     HWY_DYNAMIC_DISPATCH(SmoothColumnsImpl)(rows, w, column.data());
-    HWY_DYNAMIC_DISPATCH(SmoothRowImpl)(column.data(), w, dst->ptr<uint8_t>(y));
+    HWY_DYNAMIC_DISPATCH(SmoothRowImpl)(column.data(), w, out);
+    for (size_t x : {size_t(0), size_t(1), size_t(2), w - 3, w - 2, w - 1}) out[x] = rows[3][x];
   }
 }
 
@@ -101,19 +108,17 @@ constexpr int kAngles = 64;
 
 // The pattern rotated by k * 360/64 degrees, points rounded to pixels.
 struct RotatedPatterns {
-  std::array<std::array<cv::Vec4b, kTests>, kAngles> tests{};  // signed offsets stored as int8
+  std::array<std::array<cv::Vec<int8_t, 4>, kTests>, kAngles> tests{};  // (x1, y1, x2, y2) offsets
   RotatedPatterns() {
     const std::vector<cv::Vec4i>& p = briefPattern();
     for (int k = 0; k < kAngles; ++k) {
       const double a = 2.0 * M_PI * k / kAngles, c = std::cos(a), s = std::sin(a);
-      for (int i = 0; i < kTests; ++i) {
-        auto rot = [&](int x, int y, int j) {
-          tests[size_t(k)][size_t(i)][j] = uint8_t(int8_t(std::lround(x * c - y * s)));
-          tests[size_t(k)][size_t(i)][j + 1] = uint8_t(int8_t(std::lround(x * s + y * c)));
-        };
-        rot(p[size_t(i)][0], p[size_t(i)][1], 0);
-        rot(p[size_t(i)][2], p[size_t(i)][3], 2);
-      }
+      for (int i = 0; i < kTests; ++i)
+        for (int j : {0, 2}) {
+          const int x = p[size_t(i)][j], y = p[size_t(i)][j + 1];
+          tests[size_t(k)][size_t(i)][j] = int8_t(std::lround(x * c - y * s));
+          tests[size_t(k)][size_t(i)][j + 1] = int8_t(std::lround(x * s + y * c));
+        }
     }
   }
 };
@@ -147,11 +152,11 @@ void computeBrief(const cv::Mat& smoothed, const std::vector<cv::KeyPoint>& keyp
     const auto& tests = rp.tests[size_t(k)];
     const uint8_t* centre = smoothed.ptr<uint8_t>(y) + x;
     uint8_t* out = descriptors->ptr<uint8_t>(int(i));
-    auto at = [&](uint8_t dx, uint8_t dy) { return centre[int(int8_t(dy)) * step + int(int8_t(dx))]; };
+    auto at = [&](int dx, int dy) { return centre[dy * step + dx]; };
     for (int b = 0; b < kBriefBytes; ++b) {
       uint8_t byte = 0;
       for (int j = 0; j < 8; ++j) {
-        const cv::Vec4b& t = tests[size_t(8 * b + j)];
+        const cv::Vec<int8_t, 4>& t = tests[size_t(8 * b + j)];
         byte = uint8_t(byte | ((at(t[0], t[1]) < at(t[2], t[3])) << j));
       }
       out[b] = byte;
