@@ -699,11 +699,6 @@ class NerfslamNode {
   void publishMap(const ros::Time& stamp) {
     const auto points = system_->map().points();
     const auto keyframes = system_->map().keyframes();
-    {
-      std::lock_guard<std::mutex> lock(diag_mutex_);
-      map_points_ = points.size();
-      keyframes_ = keyframes.size();
-    }
     sensor_msgs::PointCloud2 cloud;
     cloud.header.stamp = stamp;
     cloud.header.frame_id = mapFrame();
@@ -782,15 +777,14 @@ class NerfslamNode {
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) {
     std::string state;
-    size_t points = 0, kfs = 0;
     {
       std::lock_guard<std::mutex> lock(diag_mutex_);
       state = state_;
-      points = map_points_;
-      kfs = keyframes_;
     }
-    // The map's own counts, not those of the last published cloud: that is only refreshed when a
-    // frame arrives, so keyframes the mapping thread adds while no images come would not show.
+    // The map's own counts (0 while no system runs), not those of the last published cloud: that is
+    // only refreshed when a frame arrives, so keyframes the mapping thread adds while no images come
+    // would not show.
+    size_t points = 0, kfs = 0;
     if (const auto h = handle(); h && h->map) {
       kfs = h->map->numKeyframes();
       points = h->map->numPoints();
@@ -903,7 +897,6 @@ class NerfslamNode {
   std::atomic<double> callback_ms_sum_{0}, callback_ms_max_{0};
   std::mutex diag_mutex_;
   std::string state_;
-  size_t map_points_ = 0, keyframes_ = 0;
   nerfslam::rosnode::MasterWatch master_watch_;  // re-registers with a restarted master
 };
 
