@@ -23,11 +23,13 @@ std::vector<Line> readDataLines(const fs::path& file) {
   size_t n = 0;
   while (std::getline(in, s)) {
     ++n;
-    if (!s.empty() && s.back() == '\r') s.pop_back();
-    size_t b = s.find_first_not_of(" \t");
-    if (b == std::string::npos || s[b] == '#') continue;
-    size_t e = s.find_last_not_of(" \t");
-    out.push_back({n, s.substr(b, e - b + 1)});
+    // Blank means what splitTokens splits on (std::isspace: also \r, \f, \v), so that every data
+    // line returned holds at least one token.
+    const auto blank = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0; };
+    const auto b = std::find_if_not(s.begin(), s.end(), blank);
+    if (b == s.end() || *b == '#') continue;
+    const auto e = std::find_if_not(s.rbegin(), s.rend(), blank).base();
+    out.push_back({n, std::string(b, e)});
   }
   if (in.bad()) fail("{}: read error", file.string());
   return out;

@@ -7,6 +7,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "nerfslam/core/camera.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/io/dataset.h"
 #include "test_support.h"
@@ -113,6 +114,22 @@ TEST(FuzzRegression, MiddleburyViewCountOutOfRange) {
                   "4444444444444444444444444444444444444444444444444444447\n"
                   "templeR0001.png 1 0 0 0 1 0 0 0 1 1 0 0 0 1 0 0 0 1 0 0 0\n");
   expectDatasetError("middlebury", dir.path(), {"templeR_par.txt", "view count"});
+}
+
+// fuzz_dataset_folder: a times.txt line of form feeds was a data line to readDataLines (which trimmed
+// only spaces and tabs) but held no token for splitTokens (std::isspace), and the folder reader read
+// the first token of an empty list. Lines of any whitespace are blank now.
+TEST(FuzzRegression, FolderTimesLineOfOnlyFormFeeds) {
+  test::TempDir dir;
+  for (int i = 0; i < 2; ++i)
+    ASSERT_TRUE(cv::imwrite((dir / (std::to_string(i) + ".png")).string(), cv::Mat(48, 64, CV_8UC1, cv::Scalar(i))));
+  saveCameraYaml(Camera::pinhole(64, 48, 50, 50, 31.5, 23.5), dir / "camera.yaml");
+  test::writeText(dir / "times.txt", "\f\f\v\n0.5\n\f 0.75 \f\n");
+  const auto ds = openDataset("folder", dir.path());
+  ASSERT_EQ(ds->size(), 2u);
+  EXPECT_DOUBLE_EQ(ds->timestamp(1), 0.75);
+  test::writeText(dir / "times.txt", "\f\f\n0.5\n");
+  expectDatasetError("folder", dir.path(), {"times.txt", "1 timestamps for 2 images"});
 }
 
 }  // namespace
