@@ -69,6 +69,8 @@ struct InitializationResult {
   double median_flow_px = 0;
   double homography_ratio = 0;
   uint64_t ref_frame_id = 0, cur_frame_id = 0;
+  // Thread CPU time of this call's stages: KLT tracking, and the model fits with reconstruction.
+  double klt_cpu_ms = 0, models_cpu_ms = 0;
 };
 
 class Initializer {
@@ -85,7 +87,9 @@ class Initializer {
   InitializerOptions opt_;
   bool has_ref_ = false;
   Frame ref_;
-  cv::Mat prev_image_;
+  // KLT pyramid of the previous frame with its derivatives (cv::buildOpticalFlowPyramid), built once
+  // per frame and used by both the forward and the backward pass.
+  std::vector<cv::Mat> prev_pyr_;
   std::vector<cv::Point2f> prev_pts_;
   std::vector<int> track_ref_index_;  // reference keypoint index per live track
 };
