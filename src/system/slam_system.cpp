@@ -81,6 +81,7 @@ void SlamSystem::reset() {
   local_stale_frames_ = 0;
   last_inliers_ = 0;
   reference_ = -1;
+  last_keyframe_pose_.reset();
   last_matches_.clear();
   pre_init_frames_.clear();
   // Frames tracked against the discarded map lose their poses.
@@ -131,6 +132,7 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
   init_model_ = r.model;
   reference_ = id1;
   frames_since_keyframe_ = 0;
+  last_keyframe_pose_ = T_cur;
   // The reference frame of the initialisation becomes tracked retroactively.
   for (auto& prev : records_)
     if (prev.index == r.ref_frame_id) {
@@ -425,6 +427,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   double nearest = std::numeric_limits<double>::infinity();
   const Eigen::Vector3d axis = res.T_world_cam.rotation() * Eigen::Vector3d::UnitZ();
   const double min_cos = std::cos(opt_.tracking.keyframes.covered_view_angle_deg * M_PI / 180.0);
+  const double same_cos = std::cos(opt_.tracking.keyframes.stopped_view_angle_deg * M_PI / 180.0);
   // A revisit is a return to the view of an older keyframe: the newest two, which exploration
   // extends from, do not count (as keyframe culling keeps them).
   const KeyframeId newest =
@@ -433,9 +436,14 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     const SE3& T = local_.keyframe_poses[i];
     const double dist = (T.translation() - res.T_world_cam.translation()).norm();
     nearest = std::min(nearest, dist);
-    if (local_.keyframes[i] < newest - 1 && (T.rotation() * Eigen::Vector3d::UnitZ()).dot(axis) >= min_cos)
+    const double cos_axes = (T.rotation() * Eigen::Vector3d::UnitZ()).dot(axis);
+    if (cos_axes >= same_cos) in.distance_to_same_view = std::min(in.distance_to_same_view, dist);
+    if (local_.keyframes[i] < newest - 1 && cos_axes >= min_cos)
       in.distance_to_similar_view = std::min(in.distance_to_similar_view, dist);
   }
+  if (last_keyframe_pose_ && (last_keyframe_pose_->rotation() * Eigen::Vector3d::UnitZ()).dot(axis) >= same_cos)
+    in.distance_to_same_view =
+        std::min(in.distance_to_same_view, (last_keyframe_pose_->translation() - res.T_world_cam.translation()).norm());
   in.distance_to_nearest_keyframe = std::isfinite(nearest) ? nearest : 0.0;
   if (ref_local) {
     in.reference_keyframe_points = local_.keyframe_num_points[ref_slot];
@@ -459,6 +467,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     if (mapping_->submit(std::move(k))) {
       rec.keyframe = true;
       frames_since_keyframe_ = 0;
+      last_keyframe_pose_ = res.T_world_cam;
     }
   }
   rec.message = d.reason;

@@ -225,6 +225,11 @@ KeyframeDecision decideKeyframe(const KeyframeDecisionInput& in, const KeyframeP
     return d;
   }
   const bool weak = in.quality == TrackingQuality::kWeak;
+  if (in.median_scene_depth > 0 && in.distance_to_same_view < opt.stopped_distance_ratio * in.median_scene_depth) {
+    d.reason = fmt::format("camera stopped: a keyframe within {:.4f} x depth looks the same way",
+                           in.distance_to_same_view / in.median_scene_depth);
+    return d;
+  }
   if (in.frames_since_last_keyframe < opt.min_frames_between && !(weak && in.mapping_idle)) {
     d.reason = fmt::format("too soon ({} < {} frames)", in.frames_since_last_keyframe, opt.min_frames_between);
     return d;

@@ -1,5 +1,7 @@
 #include "nerfslam/tracking/tracker.h"
 
+#include <limits>
+
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -208,6 +210,32 @@ TEST(KeyframeDecision, PtamAndCovisibilityCriteria) {
   EXPECT_TRUE(decideKeyframe(in, o).insert);
   in.quality = TrackingQuality::kLost;
   EXPECT_FALSE(decideKeyframe(in, o).insert);
+}
+
+// A stopped camera (a keyframe, the newest included, within stopped_distance_ratio x depth looking
+// the same way) makes no keyframe whatever the other criteria say, weak tracking and the frame count
+// included; moving off it, or the rule switched off, lets them decide again.
+TEST(KeyframeDecision, StoppedCameraMakesNoSecondKeyframeInOnePlace) {
+  KeyframePolicyOptions o;
+  KeyframeDecisionInput in;
+  in.quality = TrackingQuality::kWeak;
+  in.num_inliers = 200;
+  in.median_scene_depth = 10;
+  in.frames_since_last_keyframe = 40;
+  in.reference_keyframe_points = 300;
+  in.tracked_reference_points = 100;
+  in.distance_to_nearest_keyframe = 0.005;
+  in.distance_to_same_view = 0.005;  // 0.0005 x depth
+  auto d = decideKeyframe(in, o);
+  EXPECT_FALSE(d.insert);
+  EXPECT_NE(d.reason.find("stopped"), std::string::npos) << d.reason;
+  in.distance_to_same_view = 0.02;  // 0.002 x depth: moving
+  EXPECT_TRUE(decideKeyframe(in, o).insert);
+  in.distance_to_same_view = std::numeric_limits<double>::infinity();  // turned away from every keyframe
+  EXPECT_TRUE(decideKeyframe(in, o).insert);
+  in.distance_to_same_view = 0.005;
+  o.stopped_distance_ratio = 0;
+  EXPECT_TRUE(decideKeyframe(in, o).insert);
 }
 
 // A camera back where a keyframe already looks the same way makes no keyframe while tracking is good,

@@ -189,6 +189,9 @@ class SlamSystem {
   std::vector<MapMatch> last_matches_;
   std::vector<std::shared_ptr<const Frame>> pre_init_frames_;  // tracked retroactively after initialisation
   int frames_since_keyframe_ = 0;
+  // Pose of the last keyframe this thread made: it counts for the stopped-camera rule before the
+  // mapping thread has put it into the map (and so into the local map).
+  std::optional<SE3> last_keyframe_pose_;
   bool finished_ = false;
   std::atomic<bool> localization_only_{false};
   MapMode map_mode_ = MapMode::kSlam;  // kLocalize / kExtend: started from a loaded map

@@ -131,6 +131,12 @@ struct KeyframePolicyOptions {
   // docs/reliability.md "Standalone soak"; for long runs in one place, 8 is a good start).
   double covered_view_angle_deg = 0.0;
   double covered_min_tracked_ratio = 0.5;  // ... and tracking finds this much of the reference keyframe
+  // A stopped camera: a keyframe (any, the newest included) lies within this fraction of the depth
+  // and looks within stopped_view_angle_deg the same way. It then makes no keyframe, whatever the
+  // other criteria say: a second keyframe at the same place adds nothing to triangulate from (a
+  // camera standing still, or a driver repeating a frozen frame). 0 = off.
+  double stopped_distance_ratio = 0.001;
+  double stopped_view_angle_deg = 2.0;
   template <class V>
   void visit(V& v) {
     v("min_frames_between", min_frames_between, "Frames before another keyframe may be made", check::range(0, 10000));
@@ -148,6 +154,11 @@ struct KeyframePolicyOptions {
     v("covered_min_tracked_ratio", covered_min_tracked_ratio,
       "A view is covered only while tracking finds at least this fraction of the reference keyframe's points",
       check::range(0.0, 1.0));
+    v("stopped_distance_ratio", stopped_distance_ratio,
+      "No keyframe within this distance / median depth of a keyframe looking the same way (a stopped camera; 0 = off)",
+      check::range(0.0, 1.0));
+    v("stopped_view_angle_deg", stopped_view_angle_deg,
+      "Optical axes within this angle count as the same way for stopped_distance_ratio", check::range(0.0, 180.0));
   }
 };
 
@@ -159,6 +170,9 @@ struct KeyframeDecisionInput {
   // Camera centre distance to the nearest older keyframe (not the newest two) whose optical axis is
   // within covered_view_angle_deg of the camera's (infinity when there is none).
   double distance_to_similar_view = std::numeric_limits<double>::infinity();
+  // Camera centre distance to the nearest keyframe of the local map (the newest included) whose
+  // optical axis is within stopped_view_angle_deg of the camera's (infinity when there is none).
+  double distance_to_same_view = std::numeric_limits<double>::infinity();
   double median_scene_depth = 1;      // TrackingResult::median_depth
   int tracked_reference_points = 0;   // inliers that the reference keyframe also observes
   int reference_keyframe_points = 0;  // map points the reference keyframe observes
