@@ -269,6 +269,8 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     pre_init_frames_.push_back(cframe);
     if (pre_init_frames_.size() > 300) pre_init_frames_.erase(pre_init_frames_.begin());
     const InitializationResult r = initializer_->addFrame(*frame);
+    rec.init_klt_cpu_ms = r.klt_cpu_ms;
+    rec.init_models_cpu_ms = r.models_cpu_ms;
     if (!r.success) {
       rec.message = r.reason;
       last_init_message_ = r.reason;

@@ -46,6 +46,18 @@ TEST(RunSystem, Kitti06First51TracksEveryFrameAccurately) {
   EXPECT_LT(init_frames, 51);
   EXPECT_GT(rep.at("initialization_cpu_ms_median").get<double>(), 0.0);
   EXPECT_GE(rep.at("initialization_cpu_ms_max").get<double>(), rep.at("initialization_cpu_ms_median").get<double>());
+  // Where it went: at least one frame tracked KLT and fitted the models; the stages add up to no
+  // more than the slowest initialisation frame.
+  const auto& is = rep.at("initialization_stage_cpu_ms");
+  double stage_max_sum = 0;
+  for (const char* k : {"extract", "klt", "models", "other"}) {
+    ASSERT_TRUE(is.contains(k)) << k;
+    EXPECT_GE(is.at(k).at("max").get<double>(), is.at(k).at("median").get<double>()) << k;
+    stage_max_sum += is.at(k).at("max").get<double>();
+  }
+  EXPECT_GT(is.at("klt").at("max").get<double>(), 0.0);
+  EXPECT_GT(is.at("models").at("max").get<double>(), 0.0);
+  EXPECT_GE(stage_max_sum, rep.at("initialization_cpu_ms_max").get<double>() * 0.99);
   EXPECT_GT(rep.at("tracking_cpu_ms_after_init_median").get<double>(), 0.0);
   EXPECT_GE(rep.at("tracking_cpu_ms_after_init_p99").get<double>(),
             rep.at("tracking_cpu_ms_after_init_median").get<double>());

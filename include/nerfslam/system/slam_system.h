@@ -108,6 +108,8 @@ struct FrameRecord {
   // the rest (keyframe decision, statistics for point culling).
   double extract_cpu_ms = 0, local_map_cpu_ms = 0, track_cpu_ms = 0, relocalize_cpu_ms = 0;
   FrameTimings extract_stages;  // the extraction's own stages (pyramid, FAST, descriptors)
+  // Before a map exists: the initialiser's KLT tracking, and its model fits with the reconstruction.
+  double init_klt_cpu_ms = 0, init_models_cpu_ms = 0;
   std::string message;
 };
 
