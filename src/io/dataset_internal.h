@@ -75,8 +75,8 @@ struct Line {
   std::string text;
 };
 // Lines that are neither blank nor comments (first non-space character '#'), trimmed of whitespace
-// as std::isspace defines it (so each holds at least one splitTokens token). Throws naming the file when it cannot be
-// read.
+// as std::isspace defines it (so each holds at least one splitTokens token). Throws naming the
+// file when it cannot be read.
 std::vector<Line> readDataLines(const fs::path& file);
 // Splits on whitespace and (when `commas`) commas.
 std::vector<std::string> splitTokens(const std::string& s, bool commas = false);
