@@ -139,8 +139,9 @@ void printPipeline() {
       "New Tsukuba 640x480, one core: initialised at frame %llu (%zu points, %s); init per frame median "
       "%.1f ms, max %.1f ms\n",
       static_cast<unsigned long long>(ir.cur_frame_id), ir.points.size(), ir.model.c_str(), si.median, si.max);
+  const Stats sk = stats(init_klt), sm = stats(init_models);
   std::printf("  of which KLT median %.1f ms (max %.1f), models and reconstruction median %.1f ms (max %.1f)\n",
-              stats(init_klt).median, stats(init_klt).max, stats(init_models).median, stats(init_models).max);
+              sk.median, sk.max, sm.median, sm.max);
   std::printf("tracked %d frames against the initial map (good %d, weak %d, lost %d, mean inliers %.0f)\n", n, good,
               weak, lost, n ? inliers / n : 0.0);
   std::printf("thread CPU time per frame (wall clock depends on the machine's load):\n");

@@ -115,21 +115,19 @@ TEST_F(TrackingFaults, BlackFramesFrozenFrameAndGapAreReportedAndRecovered) {
   EXPECT_LE(first_back, 51) << "not tracking again after the black frames";
   EXPECT_EQ(sys_->state(), TrackingState::kTracking);
 
-  // 3. A frozen frame repeated 15 times: tracked (a static camera), at one pose, and at most one
-  // keyframe (frame 69 may deserve one, as a camera that stops there would; a second one at the same
-  // place never: KeyframePolicyOptions::stopped_distance_ratio).
+  // 3. A frozen frame repeated 15 times: tracked (a static camera), at one pose, no new keyframe (the
+  // camera stands where one is: KeyframePolicyOptions::stopped_distance_ratio).
   const size_t kfs_before_frozen = sys_->map().numKeyframes();
   std::vector<SE3> frozen;
-  int frozen_keyframes = 0;
   for (int k = 0; k < 15; ++k, t += dt) {
     const Fed& f = feed(69, t);
     EXPECT_TRUE(f.record.tracked);
-    if (f.record.keyframe && ++frozen_keyframes == 2) ADD_FAILURE() << "a second frozen frame became a keyframe";
+    EXPECT_FALSE(f.record.keyframe) << "a frozen frame became a keyframe (" << f.record.message << ")";
     if (f.record.tracked) frozen.push_back(f.record.T_world_cam);
   }
   ASSERT_FALSE(frozen.empty());
   for (const SE3& T : frozen) EXPECT_LT((T.translation() - frozen.front().translation()).norm(), 1e-3);
-  EXPECT_LE(sys_->map().numKeyframes(), kfs_before_frozen + 1);
+  EXPECT_EQ(sys_->map().numKeyframes(), kfs_before_frozen);
 
   // 4. A 2-second gap (frames 70..129 never arrive; the camera is elsewhere, possibly in an unmapped
   // view): frames 130..139 are either lost or tracked correctly (the final ATE checks the latter),
