@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include <Eigen/Geometry>
@@ -10,6 +11,7 @@
 #include <opencv2/core/eigen.hpp>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/pose.h"
 
 namespace nerfslam {
 namespace {
@@ -394,16 +396,36 @@ Reconstruction reconstructFromHomography(const Eigen::Matrix3d& H, const Eigen::
   }
   std::vector<Reconstruction> recs = evaluateCandidates(candidates, K, x1, x2, inliers, reprojection_threshold_px);
   if (recs.empty()) return {};
-  // A plane seen from two views has two physically valid decompositions (the "twin" solution);
-  // both explain the images equally. Among the candidates that explain >= 90% of the best count,
-  // take the plane that faces the reference camera most directly (largest |n_z|), the common
-  // case for a textured plane the camera looks at; the others count as runner-up only when they
-  // are clearly worse.
+  // A plane seen from two views has two physically valid decompositions (the "twin" solution).
+  // Off-plane points tell them apart: the right one's epipolar geometry E = [t]x R explains all the
+  // tracked correspondences (the homography's outliers included), so among the candidates that
+  // explain >= 90% of the best count, those whose truncated Sampson cost over all correspondences is
+  // clearly above the lowest drop out. (On New Tsukuba at R_H 0.46 the twin facing the camera had 3x
+  // the cost of the other, and initialising from it gave a 2.6 % ATE.) When the cost cannot tell
+  // them apart (a real plane), take the plane that faces the reference camera most directly
+  // (largest |n_z|), the common case for a textured plane the camera looks at. The others count as
+  // runner-up only when they are clearly worse.
   int max_good = 0;
   for (const auto& r : recs) max_good = std::max(max_good, r.num_good);
+  const auto nearBest = [&](size_t i) { return recs[i].num_good >= 0.9 * max_good && recs[i].num_good > 0; };
+  const double trunc = reprojection_threshold_px * reprojection_threshold_px;
+  const Eigen::Matrix3d Ki = K.inverse();
+  std::vector<double> cost(recs.size(), std::numeric_limits<double>::infinity());
+  double min_cost = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < recs.size(); ++i) {
+    if (!nearBest(i)) continue;
+    const Eigen::Matrix3d F = Ki.transpose() * SE3::hat(candidates[i].t) * candidates[i].R * Ki;
+    double c = 0;
+    for (size_t j = 0; j < x1.size(); ++j) c += std::min(sampsonError(F, x1[j], x2[j]), trunc);
+    cost[i] = c;
+    min_cost = std::min(min_cost, c);
+  }
+  // "Clearly above": 1.5x the lowest, plus a quarter of the truncation per hundred points so that
+  // noise-level costs (a plane: all near zero) never separate.
+  const double max_cost = 1.5 * min_cost + 0.0025 * trunc * static_cast<double>(x1.size());
   int chosen = -1;
   for (size_t i = 0; i < recs.size(); ++i) {
-    if (recs[i].num_good < 0.9 * max_good || recs[i].num_good == 0) continue;
+    if (!nearBest(i) || cost[i] > max_cost) continue;
     if (chosen < 0 || std::abs(normals[i].z()) > std::abs(normals[static_cast<size_t>(chosen)].z()))
       chosen = static_cast<int>(i);
   }

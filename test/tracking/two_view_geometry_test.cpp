@@ -170,6 +170,69 @@ TEST(TwoViewGeometry, HomographyOnPlaneMatchesOpenCVAndRecoversPose) {
   EXPECT_LT(dirAngleDeg(rec.pose.t, s.pose.t), 1e-3);
 }
 
+// A floor seen by a camera moving forward, with objects standing on it. The homography of the
+// floor has two physically valid decompositions; the wrong twin's plane faces the camera (normal
+// ~ the motion, along z), the true floor does not (normal along y). The objects off the floor pick
+// the true one by the epipolar geometry; "the plane that faces the camera" alone would pick the
+// twin (checked below).
+TEST(TwoViewGeometry, HomographyTwinIsResolvedByPointsOffThePlane) {
+  Eigen::Matrix3d K;
+  K << 520, 0, 320, 0, 525, 240, 0, 0, 1;
+  RelativePose truth;
+  truth.R = rot(0.004, -0.01, 0.002);
+  truth.t = Eigen::Vector3d(0.03, 0.01, -0.25);  // X2 = R X1 + t: forward by 0.25
+  const Eigen::Vector3d n(0, 1, 0);              // floor y = 1.2 (camera y axis points down)
+  const double d = 1.2;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::normal_distribution<double> g(0, 0.3);
+  Points2d x1, x2, f1, f2;
+  std::vector<char> on_floor;
+  auto add = [&](const Eigen::Vector3d& X, bool floor) {
+    const Eigen::Vector3d X2 = truth.R * X + truth.t;
+    if (X.z() < 0.5 || X2.z() < 0.5) return;
+    const Eigen::Vector2d a = (K * X).hnormalized(), b = (K * X2).hnormalized();
+    if (a.x() < 0 || a.x() > 640 || a.y() < 0 || a.y() > 480 || b.x() < 0 || b.x() > 640 || b.y() < 0 || b.y() > 480)
+      return;
+    x1.push_back(a + Eigen::Vector2d(g(rng), g(rng)));
+    x2.push_back(b + Eigen::Vector2d(g(rng), g(rng)));
+    on_floor.push_back(floor);
+    if (floor) {
+      f1.push_back(x1.back());
+      f2.push_back(x2.back());
+    }
+  };
+  while (f1.size() < 300) add(Eigen::Vector3d(2.0 * u(rng), d, 4.0 + 3.0 * u(rng)), true);
+  for (int i = 0; i < 150; ++i)
+    add(Eigen::Vector3d(2.0 * u(rng), d - 1.5 * (0.5 + 0.5 * u(rng)), 4.0 + 3.0 * u(rng)), false);
+  ASSERT_GT(x1.size() - f1.size(), 100u);
+  const Eigen::Matrix3d H = dltHomography(f1, f2);
+
+  const Reconstruction rec = reconstructFromHomography(H, K, x1, x2, on_floor, 2.0);
+  EXPECT_LT(angleDeg(rec.pose.R, truth.R), 0.3);
+  EXPECT_LT(dirAngleDeg(rec.pose.t, truth.t), 3.0);
+  EXPECT_GE(rec.num_good, static_cast<int>(0.95 * f1.size()));
+
+  // The test means something: a twin explains the floor as well and faces the camera more.
+  cv::Mat cvH, cvK;
+  cv::eigen2cv(H, cvH);
+  cv::eigen2cv(K, cvK);
+  std::vector<cv::Mat> Rs, ts, ns;
+  cv::decomposeHomographyMat(cvH, cvK, Rs, ts, ns);
+  double true_nz = -1, best_other_nz = -1;
+  for (size_t i = 0; i < Rs.size(); ++i) {
+    Eigen::Matrix3d R;
+    Eigen::Vector3d nn;
+    cv::cv2eigen(Rs[i], R);
+    cv::cv2eigen(ns[i], nn);
+    if (angleDeg(R, truth.R) < 0.3 && std::abs(nn.normalized().dot(n)) > 0.99)
+      true_nz = std::max(true_nz, std::abs(nn.normalized().z()));
+    else
+      best_other_nz = std::max(best_other_nz, std::abs(nn.normalized().z()));
+  }
+  EXPECT_GT(best_other_nz, true_nz + 0.5);
+}
+
 TEST(TwoViewGeometry, ModelSelectionScorePrefersHomographyOnPlaneOnly) {
   RansacOptions ro;
   const Scene plane = makeScene(200, true, 0.5, 6);

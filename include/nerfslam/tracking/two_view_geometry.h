@@ -79,8 +79,10 @@ Reconstruction reconstructFromFundamental(const Eigen::Matrix3d& F, const Eigen:
                                           double reprojection_threshold_px);
 // Homography decomposition (Faugeras / OpenCV decomposeHomographyMat candidates) + cheirality.
 // The planar two-fold ambiguity (two candidates explaining >= 90% of the best count) is resolved
-// in favour of the plane that faces the reference camera (largest |n_z|); second_best_good then
-// counts only the clearly worse candidates.
+// by the epipolar geometry E = [t]x R of each candidate over all correspondences (x1, x2, not only
+// the `inliers` of H): points off the plane reject the wrong twin. When that cannot tell them apart
+// (a real plane), the plane that faces the reference camera (largest |n_z|) is taken.
+// second_best_good then counts only the clearly worse candidates.
 Reconstruction reconstructFromHomography(const Eigen::Matrix3d& H, const Eigen::Matrix3d& K, const Points2d& x1,
                                          const Points2d& x2, const std::vector<char>& inliers,
                                          double reprojection_threshold_px);
