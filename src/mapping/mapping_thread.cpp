@@ -64,10 +64,32 @@ void MappingThread::stop() {
 bool MappingThread::submit(KeyframeInsertion kf) {
   if (!kf.frame) fail("MappingThread::submit: keyframe without a frame");
   pending_.fetch_add(1);
-  const bool ok = queue_.tryPush(std::move(kf));
+  const bool ok = queue_.tryPush(Job{std::move(kf), {}});
   if (!ok) pending_.fetch_sub(1);
   if (!ok) spdlog::debug("mapping busy: keyframe dropped ({} so far)", queue_.dropped());
   return ok;
+}
+
+namespace {
+void runTask(const std::function<void()>& task) {
+  try {
+    task();
+  } catch (const std::exception& e) {
+    spdlog::error("mapping thread task: {}", e.what());
+  }
+}
+}  // namespace
+
+void MappingThread::submitTask(std::function<void()> task) {
+  if (!task) return;
+  // Only producers push, so a queue with room keeps it until the push below (tryPush would count a
+  // refused task as a dropped keyframe).
+  if (thread_running_.load() && queue_.size() < queue_.capacity()) {
+    pending_.fetch_add(1);
+    if (queue_.tryPush(Job{KeyframeInsertion{}, task})) return;
+    pending_.fetch_sub(1);
+  }
+  runTask(task);
 }
 
 KeyframeId MappingThread::insert(KeyframeInsertion in) {
@@ -96,13 +118,17 @@ void MappingThread::run() {
   for (;;) {
     auto item = queue_.pop();
     if (!item) break;
-    try {
-      const KeyframeId id = insert(std::move(*item));
-      MappingStats s = mapper_.processKeyframe(id);
-      std::lock_guard<std::mutex> lock(stats_mutex_);
-      stats_.push_back(s);
-    } catch (const std::exception& e) {
-      spdlog::error("mapping thread: {}", e.what());
+    if (item->task) {
+      runTask(item->task);
+    } else {
+      try {
+        const KeyframeId id = insert(std::move(item->keyframe));
+        MappingStats s = mapper_.processKeyframe(id);
+        std::lock_guard<std::mutex> lock(stats_mutex_);
+        stats_.push_back(s);
+      } catch (const std::exception& e) {
+        spdlog::error("mapping thread: {}", e.what());
+      }
     }
     {
       std::lock_guard<std::mutex> lock(stats_mutex_);

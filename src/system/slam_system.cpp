@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <chrono>
 #include <map>
+#include <mutex>
+#include <optional>
 #include <unordered_map>
 
 #include <spdlog/spdlog.h>
@@ -73,6 +75,8 @@ SlamSystem::~SlamSystem() {
 
 void SlamSystem::reset() {
   mapping_->waitIdle();
+  mergeDeferred();  // frames tracked against the map being discarded are discarded with it below
+  deferred_pose_.reset();
   map_->clear();
   initializer_->reset();
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
@@ -92,6 +96,16 @@ void SlamSystem::reset() {
 }
 
 bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr<const Frame>& cur, FrameRecord& rec) {
+  // The initialiser's points are already scaled to median depth 1 in the reference camera.
+  int usable = 0;
+  for (const InitialPoint& p : r.points) usable += p.ref_feature >= 0 && p.cur_feature >= 0;
+  if (usable < opt_.min_initial_points) {
+    last_init_message_ = fmt::format("initialisation rejected: {} points observed in both keyframes (< {})", usable,
+                                     opt_.min_initial_points);
+    spdlog::info("{}", last_init_message_);
+    initializer_->reset();
+    return false;
+  }
   auto ref = std::make_shared<const Frame>(initializer_->reference());
   KeyframeInsertion k0{ref, r.T_world_ref, {}};
   KeyframeInsertion k1{cur, r.T_world_cur, {}};
@@ -103,28 +117,7 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
     const PointId pid = map_->addPoint(p.p_world, {{id0, p.ref_feature}, {id1, p.cur_feature}});
     if (pid != kNoPoint) pts.push_back(pid);
   }
-  mapping_->mapper().globalBundleAdjustment(20);
-  // Median depth 1 in the reference keyframe after BA.
-  const auto kf0 = map_->keyframe(id0);
-  std::vector<double> z;
-  for (const MapPoint& p : map_->points()) z.push_back((kf0->T_world_cam.inverse() * p.position).z());
-  if (static_cast<int>(z.size()) < opt_.min_initial_points) {
-    last_init_message_ =
-        fmt::format("initialisation rejected: {} map points after BA (< {})", z.size(), opt_.min_initial_points);
-    spdlog::info("{}", last_init_message_);
-    map_->clear();
-    initializer_->reset();
-    return false;
-  }
-  std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
-  const double median = z[z.size() / 2];
-  if (!(median > 0)) {
-    map_->clear();
-    initializer_->reset();
-    return false;
-  }
-  map_->transform(Sim3(1.0 / median, SE3()));
-  const SE3 T_cur = map_->keyframe(id1)->T_world_cam;
+  const SE3 T_cur = r.T_world_cur;
   tracker_->setPose(T_cur);
   state_ = TrackingState::kTracking;
   initialized_once_ = true;
@@ -139,37 +132,45 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
       prev.tracked = true;
       prev.reference = id0;
       prev.T_ref_cam = SE3();
-      prev.T_world_cam = map_->keyframe(id0)->T_world_cam;
+      prev.T_world_cam = r.T_world_ref;
       prev.keyframe = true;
     }
-  // Frames between the two initialisation frames are tracked against the new map (pose prior
-  // interpolated between the two keyframes).
-  {
-    const SE3 T0 = map_->keyframe(id0)->T_world_cam;
-    buildLocalMap(id1);
-    int n_back = 0;
-    for (const auto& f : pre_init_frames_) {
-      if (f->id <= r.ref_frame_id || f->id >= r.cur_frame_id) continue;
-      const double s = double(f->id - r.ref_frame_id) / double(r.cur_frame_id - r.ref_frame_id);
-      const SE3 prior = SE3::interpolate(T0, T_cur, s);
-      tracker_->setPose(prior);
-      const TrackingResult tr = tracker_->track(*f, local_.points, &prior);
-      if (tr.quality == TrackingQuality::kLost) continue;
-      for (auto& prev : records_)
-        if (prev.index == f->id && !prev.tracked) {
-          prev.tracked = true;
-          prev.reference = id0;
-          prev.T_ref_cam = T0.inverse() * tr.T_world_cam;
-          prev.T_world_cam = tr.T_world_cam;
-          prev.num_inliers = tr.num_inliers;
-          prev.message = "tracked after initialisation";
-          ++n_back;
+  // The two-keyframe bundle adjustment, and tracking the frames between the two initialisation
+  // frames against the adjusted map, run on the mapping thread (it has nothing else to do yet): the
+  // tracking thread goes on with the next frame. Offline (lockstep) runs wait for it before the next
+  // frame as for any keyframe; the poses come back through mergeDeferred().
+  std::vector<std::shared_ptr<const Frame>> between;
+  for (const auto& f : pre_init_frames_)
+    if (f->id > r.ref_frame_id && f->id < r.cur_frame_id) between.push_back(f);
+  pre_init_frames_.clear();
+  frames_tracked_since_init_ = 0;
+  mapping_->submitTask(
+      [this, id0, id1, between = std::move(between), ref_id = r.ref_frame_id, cur_id = r.cur_frame_id]() {
+        DeferredInitResult out;
+        mapping_->mapper().globalBundleAdjustment(20);
+        const auto kf0 = map_->keyframe(id0);
+        const auto kf1 = map_->keyframe(id1);
+        if (kf1) out.T_world_cur = kf1->T_world_cam;
+        out.has_pose = kf0 && kf1;
+        TrackingLocalMap m;
+        if (out.has_pose && !between.empty() && map_->localMapForTracking(id1, opt_.local_map_keyframes, &m, true)) {
+          // Pose prior interpolated between the two keyframes.
+          const SE3 T0 = kf0->T_world_cam;
+          Tracker tracker(opt_.tracking.tracker);
+          for (const auto& f : between) {
+            const double s = double(f->id - ref_id) / double(cur_id - ref_id);
+            const SE3 prior = SE3::interpolate(T0, out.T_world_cur, s);
+            tracker.setPose(prior);
+            const TrackingResult tr = tracker.track(*f, m.points, &prior);
+            if (tr.quality == TrackingQuality::kLost) continue;
+            out.frames.push_back({f->id, id0, T0.inverse() * tr.T_world_cam, tr.T_world_cam, tr.num_inliers});
+          }
+          if (!out.frames.empty())
+            spdlog::info("{} frames between the initialisation frames tracked against the new map", out.frames.size());
         }
-    }
-    pre_init_frames_.clear();
-    tracker_->setPose(T_cur);
-    if (n_back > 0) spdlog::info("{} frames between the initialisation frames tracked against the new map", n_back);
-  }
+        std::lock_guard<std::mutex> lock(deferred_mutex_);
+        deferred_ = std::move(out);
+      });
   rec.tracked = true;
   rec.keyframe = true;
   rec.reference = id1;
@@ -180,6 +181,26 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
       fmt::format("initialised ({}, {} points, parallax {:.1f} deg)", r.model, map_->numPoints(), r.parallax_deg);
   spdlog::info("frame {}: {}", rec.index, rec.message);
   return true;
+}
+
+void SlamSystem::mergeDeferred() const {
+  std::optional<DeferredInitResult> d;
+  {
+    std::lock_guard<std::mutex> lock(deferred_mutex_);
+    d.swap(deferred_);
+  }
+  if (!d) return;
+  for (const DeferredFrame& f : d->frames)
+    for (auto& prev : records_)
+      if (prev.index == f.index && !prev.tracked) {
+        prev.tracked = true;
+        prev.reference = f.reference;
+        prev.T_ref_cam = f.T_ref_cam;
+        prev.T_world_cam = f.T_world_cam;
+        prev.num_inliers = f.num_inliers;
+        prev.message = "tracked after initialisation";
+      }
+  if (d->has_pose) deferred_pose_ = d->T_world_cur;
 }
 
 KeyframeId SlamSystem::chooseReference(const std::vector<MapMatch>& matches) const {
@@ -239,6 +260,12 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   if (finished_) fail("SlamSystem::trackFrame after finish()");
   const auto t0 = std::chrono::steady_clock::now();
   const double cpu0 = threadCpuMs();
+  mergeDeferred();  // what the mapping thread finished for a new map (initialize())
+  if (deferred_pose_) {
+    // No frame tracked against the map yet: start from the adjusted pose of the newest keyframe.
+    if (frames_tracked_since_init_ == 0 && state_ == TrackingState::kTracking) tracker_->setPose(*deferred_pose_);
+    deferred_pose_.reset();
+  }
   FrameRecord rec;
   rec.index = index;
   rec.timestamp = timestamp;
@@ -281,6 +308,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   }
 
   ++frames_since_keyframe_;
+  ++frames_tracked_since_init_;
   double lap = threadCpuMs();
   auto lapMs = [&lap] {
     const double now = threadCpuMs(), ms = now - lap;
@@ -482,6 +510,7 @@ void SlamSystem::finish(bool global_ba) {
   if (finished_) return;
   finished_ = true;
   mapping_->stop();
+  mergeDeferred();
   map_->flushTrackingStatistics();  // statistics queued while the mapping thread held the map
   if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0 &&
       map_mode_ != MapMode::kLocalize) {
@@ -493,6 +522,7 @@ void SlamSystem::finish(bool global_ba) {
 }
 
 Trajectory SlamSystem::trajectory() const {
+  mergeDeferred();
   Trajectory out;
   for (const auto& r : records_) {
     if (!r.tracked) continue;

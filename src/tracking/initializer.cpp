@@ -55,12 +55,19 @@ InitializationResult Initializer::addFrame(const Frame& frame) {
                                 opt_.klt_levels, true);
     prev_pts_.clear();
     track_ref_index_.clear();
-    for (size_t i = 0; i < frame.keypoints.size(); ++i) {
+    // KLT costs the same per corner: track at most max_tracks, every n-th, which keeps the
+    // keypoints' spread over the image and over the pyramid levels (they are stored level by level,
+    // bucketed in a grid).
+    const size_t n = frame.keypoints.size();
+    const size_t cap = static_cast<size_t>(std::max(opt_.max_tracks, opt_.min_tracked));
+    const size_t m = opt_.max_tracks > 0 ? std::min(n, cap) : n;
+    for (size_t k = 0; k < m; ++k) {
+      const size_t i = k * n / m;
       prev_pts_.push_back(frame.keypoints[i].pt);
       track_ref_index_.push_back(static_cast<int>(i));
     }
-    r.reason = fmt::format("reference frame set ({} corners)", frame.size());
-    r.num_tracked = static_cast<int>(frame.size());
+    r.reason = fmt::format("reference frame set ({} corners, {} tracked)", n, m);
+    r.num_tracked = static_cast<int>(m);
     return r;
   }
   r.ref_frame_id = ref_.id;

@@ -2,8 +2,11 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <stdexcept>
+#include <thread>
 #include <vector>
 
 namespace nerfslam {
@@ -72,6 +75,61 @@ TEST(MappingThread, SubmitNeverBlocksAndCountsDrops) {
   KeyframeInsertion late;
   late.frame = syntheticFrame(10, 99);
   EXPECT_FALSE(mt.submit(std::move(late)));
+}
+
+// Work the tracking thread hands off (the bundle adjustment of a new map): it runs on the mapping
+// thread, after the keyframes submitted before it, waitIdle() waits for it, and it is never
+// dropped: with the queue full, or the thread stopped, it runs in the calling thread.
+TEST(MappingThread, TasksRunOnTheMappingThreadInOrderAndAreNeverDropped) {
+  Map map;
+  MappingThread mt(map, {}, 2);
+  mt.start();
+  const auto caller = std::this_thread::get_id();
+  std::atomic<bool> first_started{false}, release{false};
+  std::thread::id first_thread;
+  mt.submitTask([&] {
+    first_thread = std::this_thread::get_id();
+    first_started = true;
+    while (!release) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  });
+  while (!first_started) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  EXPECT_FALSE(mt.idle());
+  KeyframeInsertion k;
+  k.frame = syntheticFrame(50, 1);
+  ASSERT_TRUE(mt.submit(std::move(k)));
+  size_t keyframes_seen = 99;
+  std::thread::id second_thread;
+  mt.submitTask([&] {
+    second_thread = std::this_thread::get_id();
+    keyframes_seen = map.numKeyframes();
+  });
+  // The queue (2) holds the keyframe and the second task: the third runs here, now.
+  bool third_ran = false;
+  std::thread::id third_thread;
+  mt.submitTask([&] {
+    third_thread = std::this_thread::get_id();
+    third_ran = true;
+  });
+  EXPECT_TRUE(third_ran);
+  EXPECT_EQ(third_thread, caller);
+  EXPECT_EQ(mt.droppedKeyframes(), 0u);  // a task is not a dropped keyframe
+  release = true;
+  mt.waitIdle();
+  EXPECT_TRUE(mt.idle());
+  EXPECT_NE(first_thread, caller);
+  EXPECT_EQ(second_thread, first_thread);
+  EXPECT_EQ(keyframes_seen, 1u);  // after the keyframe submitted before it
+  // A throwing task is logged; the thread goes on.
+  mt.submitTask([] { throw std::runtime_error("task failure (expected by the test)"); });
+  KeyframeInsertion k2;
+  k2.frame = syntheticFrame(50, 2);
+  ASSERT_TRUE(mt.submit(std::move(k2)));
+  mt.waitIdle();
+  EXPECT_EQ(map.numKeyframes(), 2u);
+  mt.stop();
+  bool late_ran = false;
+  mt.submitTask([&] { late_ran = std::this_thread::get_id() == caller; });
+  EXPECT_TRUE(late_ran);
 }
 
 }  // namespace

@@ -11,6 +11,7 @@
 // geometry that BA refines later from the Map (Map::keyframe(id)) when it needs the latest pose.
 #include <atomic>
 #include <condition_variable>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -66,6 +67,11 @@ class MappingThread {
 
   // Non-blocking; false when the queue is full (counted in droppedKeyframes()) or stopped.
   bool submit(KeyframeInsertion kf);
+  // Runs `task` on the mapping thread after what was submitted before it (work taken off the
+  // tracking thread, e.g. the bundle adjustment of a new map). Never dropped and never blocks: when
+  // the queue is full or stopped the task runs here, in the calling thread. idle() and waitIdle()
+  // count it like a keyframe; an exception it throws is logged.
+  void submitTask(std::function<void()> task);
   // Inserts and processes a keyframe in the calling thread (initialisation, tests). Must not be
   // called while the thread runs.
   KeyframeId insertNow(KeyframeInsertion kf, bool process = true);
@@ -80,12 +86,17 @@ class MappingThread {
   std::vector<MappingStats> stats() const;
 
  private:
+  // One queue item: a keyframe, or a task when `task` is set.
+  struct Job {
+    KeyframeInsertion keyframe;
+    std::function<void()> task;
+  };
   void run();
   KeyframeId insert(KeyframeInsertion kf);
 
   Map& map_;
   LocalMapper mapper_;
-  BoundedQueue<KeyframeInsertion> queue_;
+  BoundedQueue<Job> queue_;
   KeyframeBus bus_;
   std::thread thread_;
   std::atomic<int> pending_{0};  // submitted, not yet processed

@@ -9,6 +9,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -44,7 +45,7 @@ struct SystemOptions {
   int relocalization_candidates = 5;     // most recent keyframes tried when lost
   bool relocalize_when_weak = true;      // also relocalise frames tracked with fewer than min_inliers_good inliers
   double relocalize_inlier_drop = 0.25;  // ... or with fewer than this fraction of the previous frame's inliers
-  int min_initial_points = 50;           // map points required after initialisation + BA
+  int min_initial_points = 50;           // initial points observed in both keyframes
   int reset_if_lost_with_keyframes = 3;  // lost with at most this many keyframes: reinitialise
   int frame_queue = 2;                   // frames between the reader and the tracking thread
   bool lockstep = true;                  // offline runs: the reader waits for tracking and mapping per frame
@@ -68,8 +69,8 @@ struct SystemOptions {
       "With relocalize_when_weak: also relocalise a frame tracked with fewer than this fraction of the previous "
       "frame's inliers (a motion the motion model missed; 0: never)",
       check::range(0.0, 1.0));
-    v("min_initial_points", min_initial_points, "Map points required to accept an initialisation",
-      check::range(8, 100000));
+    v("min_initial_points", min_initial_points,
+      "Initial map points (seen in both keyframes) required to accept an initialisation", check::range(8, 100000));
     v("reset_if_lost_with_keyframes", reset_if_lost_with_keyframes,
       "Reinitialise when tracking is lost and the map has at most this many keyframes", check::range(0, 1000));
     v("frame_queue", frame_queue, "Frames buffered between the reader and the tracking thread", check::range(1, 1000));
@@ -140,7 +141,10 @@ class SlamSystem {
   // The NeRF mapping thread (nullptr when options.nerf.enabled is false). finish() stops it.
   NerfMapping* nerf() { return nerf_.get(); }
   const NerfMapping* nerf() const { return nerf_.get(); }
-  const std::vector<FrameRecord>& records() const { return records_; }
+  const std::vector<FrameRecord>& records() const {
+    mergeDeferred();
+    return records_;
+  }
   // Tracked frames with poses resolved through their reference keyframes (current map).
   Trajectory trajectory() const;
   Trajectory keyframeTrajectory() const;
@@ -164,6 +168,10 @@ class SlamSystem {
  private:
   bool initialize(const InitializationResult& r, const std::shared_ptr<const Frame>& frame, FrameRecord& rec);
   void reset();
+  // Applies what the mapping thread finished for a new map (initialize()): poses of the frames
+  // between the two initialisation frames into records_, and the adjusted pose of the second
+  // keyframe into deferred_pose_. Called by the thread that tracks (records_ is its state).
+  void mergeDeferred() const;
   // `wait` = false: never waits for the map lock (the local map may then stay as it was).
   void buildLocalMap(KeyframeId ref, bool wait = true);
   KeyframeId chooseReference(const std::vector<MapMatch>& matches) const;
@@ -180,7 +188,24 @@ class SlamSystem {
   int initializations_ = 0, relocalizations_ = 0;
   std::string last_init_message_;
   std::string init_model_;
-  std::vector<FrameRecord> records_;
+  // mutable: mergeDeferred() completes it from the const accessors.
+  mutable std::vector<FrameRecord> records_;
+  // The mapping thread's result for a new map (see initialize()), handed over under deferred_mutex_.
+  struct DeferredFrame {
+    uint64_t index = 0;
+    KeyframeId reference = -1;
+    SE3 T_ref_cam, T_world_cam;
+    int num_inliers = 0;
+  };
+  struct DeferredInitResult {
+    bool has_pose = false;
+    SE3 T_world_cur;  // the second keyframe after the bundle adjustment
+    std::vector<DeferredFrame> frames;
+  };
+  mutable std::mutex deferred_mutex_;
+  mutable std::optional<DeferredInitResult> deferred_;
+  mutable std::optional<SE3> deferred_pose_;
+  int64_t frames_tracked_since_init_ = 0;
   // Local map cache (buildLocalMap): rebuilt when the map's structure or the reference changes,
   // refreshed when BA moved poses and points, kept when the map's lock is taken (stale frames).
   TrackingLocalMap local_;

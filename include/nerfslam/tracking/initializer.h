@@ -28,6 +28,7 @@ struct InitializerOptions {
   double fb_threshold_px = 1.0;    // forward-backward KLT error
   int klt_window = 21;
   int klt_levels = 3;
+  int max_tracks = 1000;           // reference corners tracked (evenly thinned, >= min_tracked); 0: all
   double min_good_fraction = 0.9;  // good points / inliers of the model, and runner-up ratio
   template <class V>
   void visit(V& v) {
@@ -43,6 +44,8 @@ struct InitializerOptions {
     v("fb_threshold_px", fb_threshold_px, "KLT forward-backward consistency threshold", check::positive<double>());
     v("klt_window", klt_window, "KLT window size", check::range(5, 61));
     v("klt_levels", klt_levels, "KLT pyramid levels", check::range(0, 6));
+    v("max_tracks", max_tracks, "Reference corners tracked by KLT, evenly thinned (at least min_tracked; 0: all)",
+      check::range(0, 100000));
     v("min_good_fraction", min_good_fraction, "Fraction of model inliers that must triangulate well",
       check::range(0.0, 1.0));
   }
