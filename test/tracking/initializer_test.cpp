@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <filesystem>
 #include <fstream>
+#include <functional>
 #include <set>
 #include <sstream>
 
@@ -81,6 +83,27 @@ void expectMatchesGroundTruth(const InitializationResult& r, const SE3& T_ref_cu
   EXPECT_GT(with_cur, static_cast<int>(r.points.size()) / 3);  // most points get a current keypoint
 }
 
+// Feeds frames 0..last of `dir` (file names from the printf `pattern`) until the initialiser
+// succeeds; `on_frame` sees each frame with its result. A missing image ends it unsuccessfully.
+InitializationResult initialiseOn(
+    const std::filesystem::path& dir, const char* pattern, int last, const Camera& cam, const FeatureOptions& fo,
+    Initializer& init, const std::function<void(int, const Frame&, const InitializationResult&)>& on_frame = {}) {
+  InitializationResult r;
+  for (int i = 0; i <= last && !r.success; ++i) {
+    char name[64];
+    std::snprintf(name, sizeof(name), pattern, i);
+    const cv::Mat img = cv::imread((dir / name).string(), cv::IMREAD_GRAYSCALE);
+    if (img.empty()) {
+      r.reason = "missing image " + (dir / name).string();
+      return r;
+    }
+    const Frame f = extractFrame(img, cam, fo, static_cast<uint64_t>(i));
+    r = init.addFrame(f);
+    if (on_frame) on_frame(i, f, r);
+  }
+  return r;
+}
+
 TEST(Initializer, Kitti06InitialisesWithGroundTruthMotion) {
   NERFSLAM_REQUIRE_DATA(dir, "kitti06_first51");
   const auto gt = readKittiPoses(dir / "poses.txt");
@@ -89,14 +112,7 @@ TEST(Initializer, Kitti06InitialisesWithGroundTruthMotion) {
   FeatureOptions fo;
   fo.max_features = 1500;
   Initializer init;
-  InitializationResult r;
-  for (int i = 0; i <= 5 && !r.success; ++i) {
-    char name[32];
-    std::snprintf(name, sizeof(name), "image_l/%06d.png", i);
-    const cv::Mat img = cv::imread((dir / name).string(), cv::IMREAD_GRAYSCALE);
-    ASSERT_FALSE(img.empty());
-    r = init.addFrame(extractFrame(img, cam, fo, static_cast<uint64_t>(i)));
-  }
+  const InitializationResult r = initialiseOn(dir, "image_l/%06d.png", 5, cam, fo, init);
   ASSERT_TRUE(r.success) << r.reason;
   EXPECT_EQ(r.model, "fundamental");
   EXPECT_EQ(r.ref_frame_id, 0u);
@@ -110,14 +126,7 @@ TEST(Initializer, NewTsukubaInitialisesWithGroundTruthMotion) {
   ASSERT_GE(gt.size(), 40u);
   const Camera cam = Camera::pinhole(640, 480, 615, 615, 320, 240);
   Initializer init;
-  InitializationResult r;
-  for (int i = 0; i <= 30 && !r.success; ++i) {
-    char name[32];
-    std::snprintf(name, sizeof(name), "images/rgb_%05d.png", i);
-    const cv::Mat img = cv::imread((dir / name).string(), cv::IMREAD_GRAYSCALE);
-    ASSERT_FALSE(img.empty());
-    r = init.addFrame(extractFrame(img, cam, {}, static_cast<uint64_t>(i)));
-  }
+  const InitializationResult r = initialiseOn(dir, "images/rgb_%05d.png", 30, cam, {}, init);
   ASSERT_TRUE(r.success) << r.reason;
   expectMatchesGroundTruth(r, gt[r.ref_frame_id].inverse() * gt[r.cur_frame_id], 1.0, 5.0);
 }
@@ -135,19 +144,16 @@ TEST(Initializer, NewTsukubaWithSystemFeatureCountTracksAThousandAndInitialises)
   fo.max_features = 2000;
   Initializer init;
   ASSERT_EQ(InitializerOptions{}.max_tracks, 1000);
-  InitializationResult r;
-  for (int i = 0; i <= 30 && !r.success; ++i) {
-    char name[32];
-    std::snprintf(name, sizeof(name), "images/rgb_%05d.png", i);
-    const cv::Mat img = cv::imread((dir / name).string(), cv::IMREAD_GRAYSCALE);
-    ASSERT_FALSE(img.empty());
-    const Frame f = extractFrame(img, cam, fo, static_cast<uint64_t>(i));
-    r = init.addFrame(f);
-    if (i == 0) {
-      ASSERT_GT(f.size(), 1500u);
-      EXPECT_EQ(r.num_tracked, 1000);
-    }
-  }
+  size_t reference_corners = 0;
+  int reference_tracked = 0;
+  const InitializationResult r = initialiseOn(dir, "images/rgb_%05d.png", 30, cam, fo, init,
+                                              [&](int i, const Frame& f, const InitializationResult& ri) {
+                                                if (i > 0) return;
+                                                reference_corners = f.size();
+                                                reference_tracked = ri.num_tracked;
+                                              });
+  EXPECT_GT(reference_corners, 1500u);
+  EXPECT_EQ(reference_tracked, 1000);
   ASSERT_TRUE(r.success) << r.reason;
   std::set<int> levels;
   for (const InitialPoint& p : r.points) levels.insert(init.reference().keypoints[size_t(p.ref_feature)].octave);
