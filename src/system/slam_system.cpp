@@ -143,27 +143,28 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
   for (const auto& f : pre_init_frames_)
     if (f->id > r.ref_frame_id && f->id < r.cur_frame_id) between.push_back(f);
   pre_init_frames_.clear();
-  frames_tracked_since_init_ = 0;
+  tracked_since_init_ = false;
   mapping_->submitTask(
       [this, id0, id1, between = std::move(between), ref_id = r.ref_frame_id, cur_id = r.cur_frame_id]() {
         DeferredInitResult out;
         mapping_->mapper().globalBundleAdjustment(20);
         const auto kf0 = map_->keyframe(id0);
         const auto kf1 = map_->keyframe(id1);
-        if (kf1) out.T_world_cur = kf1->T_world_cam;
-        out.has_pose = kf0 && kf1;
+        if (!kf0 || !kf1) return;  // nothing to hand back
+        out.reference = id0;
+        out.T_world_ref = kf0->T_world_cam;
+        out.T_world_cur = kf1->T_world_cam;
         TrackingLocalMap m;
-        if (out.has_pose && !between.empty() && map_->localMapForTracking(id1, opt_.local_map_keyframes, &m, true)) {
+        if (!between.empty() && map_->localMapForTracking(id1, opt_.local_map_keyframes, &m, true)) {
           // Pose prior interpolated between the two keyframes.
-          const SE3 T0 = kf0->T_world_cam;
           Tracker tracker(opt_.tracking.tracker);
           for (const auto& f : between) {
             const double s = double(f->id - ref_id) / double(cur_id - ref_id);
-            const SE3 prior = SE3::interpolate(T0, out.T_world_cur, s);
+            const SE3 prior = SE3::interpolate(out.T_world_ref, out.T_world_cur, s);
             tracker.setPose(prior);
             const TrackingResult tr = tracker.track(*f, m.points, &prior);
             if (tr.quality == TrackingQuality::kLost) continue;
-            out.frames.push_back({f->id, id0, T0.inverse() * tr.T_world_cam, tr.T_world_cam, tr.num_inliers});
+            out.frames.push_back({f->id, tr.T_world_cam, tr.num_inliers});
           }
           if (!out.frames.empty())
             spdlog::info("{} frames between the initialisation frames tracked against the new map", out.frames.size());
@@ -194,13 +195,13 @@ void SlamSystem::mergeDeferred() const {
     for (auto& prev : records_)
       if (prev.index == f.index && !prev.tracked) {
         prev.tracked = true;
-        prev.reference = f.reference;
-        prev.T_ref_cam = f.T_ref_cam;
+        prev.reference = d->reference;
+        prev.T_ref_cam = d->T_world_ref.inverse() * f.T_world_cam;
         prev.T_world_cam = f.T_world_cam;
         prev.num_inliers = f.num_inliers;
         prev.message = "tracked after initialisation";
       }
-  if (d->has_pose) deferred_pose_ = d->T_world_cur;
+  deferred_pose_ = d->T_world_cur;
 }
 
 KeyframeId SlamSystem::chooseReference(const std::vector<MapMatch>& matches) const {
@@ -263,7 +264,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   mergeDeferred();  // what the mapping thread finished for a new map (initialize())
   if (deferred_pose_) {
     // No frame tracked against the map yet: start from the adjusted pose of the newest keyframe.
-    if (frames_tracked_since_init_ == 0 && state_ == TrackingState::kTracking) tracker_->setPose(*deferred_pose_);
+    if (!tracked_since_init_ && state_ == TrackingState::kTracking) tracker_->setPose(*deferred_pose_);
     deferred_pose_.reset();
   }
   FrameRecord rec;
@@ -308,7 +309,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   }
 
   ++frames_since_keyframe_;
-  ++frames_tracked_since_init_;
+  tracked_since_init_ = true;
   double lap = threadCpuMs();
   auto lapMs = [&lap] {
     const double now = threadCpuMs(), ms = now - lap;

@@ -193,19 +193,19 @@ class SlamSystem {
   // The mapping thread's result for a new map (see initialize()), handed over under deferred_mutex_.
   struct DeferredFrame {
     uint64_t index = 0;
-    KeyframeId reference = -1;
-    SE3 T_ref_cam, T_world_cam;
+    SE3 T_world_cam;
     int num_inliers = 0;
   };
   struct DeferredInitResult {
-    bool has_pose = false;
-    SE3 T_world_cur;  // the second keyframe after the bundle adjustment
+    KeyframeId reference = -1;  // the first keyframe: the frames' reference
+    SE3 T_world_ref;            // its pose, T_world_cur the second keyframe's, after the bundle adjustment
+    SE3 T_world_cur;
     std::vector<DeferredFrame> frames;
   };
   mutable std::mutex deferred_mutex_;
   mutable std::optional<DeferredInitResult> deferred_;
   mutable std::optional<SE3> deferred_pose_;
-  int64_t frames_tracked_since_init_ = 0;
+  bool tracked_since_init_ = false;  // a frame was tracked against the map since initialize()
   // Local map cache (buildLocalMap): rebuilt when the map's structure or the reference changes,
   // refreshed when BA moved poses and points, kept when the map's lock is taken (stale frames).
   TrackingLocalMap local_;
