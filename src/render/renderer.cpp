@@ -413,4 +413,9 @@ void Renderer::render(const Camera& camera, const SE3& T_world_cam, cv::Mat* bgr
   if (err != GL_NO_ERROR) fail("OpenGL error 0x{:x} while rendering", err);
 }
 
+void Renderer::finish() {
+  impl_->ctx.makeCurrent();
+  glFinish();
+}
+
 }  // namespace nerfslam::render

@@ -103,6 +103,9 @@ class Renderer {
   // `bgr` and/or `depth` may be null to skip that readback.
   void render(const Camera& camera, const SE3& T_world_cam, cv::Mat* bgr, cv::Mat* depth,
               const RenderOptions& opts = {});
+  // Waits until every render() so far has been drawn. A readback waits by itself; a render() with
+  // neither only queues the drawing in llvmpipe (what a benchmark of drawing alone must wait for).
+  void finish();
 
  private:
   struct Impl;
