@@ -545,14 +545,22 @@ bool Map::localMapForTracking(KeyframeId ref, int max_keyframes, TrackingLocalMa
   }
   m.keyframe_poses.clear();
   m.keyframe_num_points.clear();
+  m.keyframe_num_established.clear();
+  const size_t established = keyframes_.size() > 2 ? 3 : 2;
   std::vector<PointId> ids;
   for (KeyframeId k : m.keyframes) {
     const Keyframe& kf = keyframes_.at(k);
     m.keyframe_poses.push_back(kf.T_world_cam);
     const size_t before = ids.size();
-    for (PointId pid : kf.points)
-      if (pid != kNoPoint) ids.push_back(pid);
+    int n_established = 0;
+    for (PointId pid : kf.points) {
+      if (pid == kNoPoint) continue;
+      ids.push_back(pid);
+      auto pit = points_.find(pid);
+      n_established += pit != points_.end() && pit->second.observations.size() >= established;
+    }
     m.keyframe_num_points.push_back(static_cast<int>(ids.size() - before));
+    m.keyframe_num_established.push_back(n_established);
   }
   std::sort(ids.begin(), ids.end());
   ids.erase(std::unique(ids.begin(), ids.end()), ids.end());

@@ -478,6 +478,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   in.distance_to_nearest_keyframe = std::isfinite(nearest) ? nearest : 0.0;
   if (ref_local) {
     in.reference_keyframe_points = local_.keyframe_num_points[ref_slot];
+    in.reference_keyframe_established_points = local_.keyframe_num_established[ref_slot];
     for (const auto& m : res.matches) {
       const auto it = std::lower_bound(local_.points.begin(), local_.points.end(), m.point_id,
                                        [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });

@@ -259,9 +259,11 @@ KeyframeDecision decideKeyframe(const KeyframeDecisionInput& in, const KeyframeP
     d.reason = fmt::format("baseline {:.3f} > {:.3f} x depth", ratio, opt.min_distance_ratio);
     return d;
   }
-  if (in.reference_keyframe_points > 0 && tracked_ratio < opt.max_tracked_ratio && in.mapping_idle) {
+  if (in.reference_keyframe_established_points > 0 && in.mapping_idle &&
+      in.num_inliers < opt.max_tracked_ratio * in.reference_keyframe_established_points) {
     d.insert = true;
-    d.reason = fmt::format("covisibility {:.2f} < {:.2f}", tracked_ratio, opt.max_tracked_ratio);
+    d.reason = fmt::format("inliers {} < {:.2f} x {} established points of the reference keyframe", in.num_inliers,
+                           opt.max_tracked_ratio, in.reference_keyframe_established_points);
     return d;
   }
   if (weak && in.mapping_idle) {

@@ -192,7 +192,8 @@ TEST(KeyframeDecision, PtamAndCovisibilityCriteria) {
   in.frames_since_last_keyframe = 8;
   in.distance_to_nearest_keyframe = 0.5;  // 0.05 x depth
   in.reference_keyframe_points = 300;
-  in.tracked_reference_points = 290;
+  in.tracked_reference_points = 190;
+  in.reference_keyframe_established_points = 210;  // 200 inliers >= 0.9 x 210
   EXPECT_FALSE(decideKeyframe(in, o).insert);
   in.distance_to_nearest_keyframe = 1.5;  // 0.15 x depth
   auto d = decideKeyframe(in, o);
@@ -202,8 +203,10 @@ TEST(KeyframeDecision, PtamAndCovisibilityCriteria) {
   EXPECT_FALSE(decideKeyframe(in, o).insert);
   in.frames_since_last_keyframe = 8;
   in.distance_to_nearest_keyframe = 0.1;
-  in.tracked_reference_points = 150;  // covisibility 0.5
-  EXPECT_TRUE(decideKeyframe(in, o).insert);
+  in.reference_keyframe_established_points = 250;  // 200 inliers < 0.9 x 250 (ORB-SLAM's rule)
+  d = decideKeyframe(in, o);
+  EXPECT_TRUE(d.insert);
+  EXPECT_NE(d.reason.find("established points"), std::string::npos) << d.reason;
   in.mapping_idle = false;
   EXPECT_FALSE(decideKeyframe(in, o).insert);
   in.frames_since_last_keyframe = 40;
@@ -265,15 +268,16 @@ TEST(KeyframeDecision, CoveredViewMakesNoKeyframeWhileTrackingIsGood) {
   d = decideKeyframe(in, o);
   EXPECT_TRUE(d.insert);
   EXPECT_NE(d.reason.find("frames since"), std::string::npos) << d.reason;
-  in.frames_since_last_keyframe = 8;  // covisibility 0.67 < 0.9
+  in.frames_since_last_keyframe = 8;
+  in.reference_keyframe_established_points = 250;  // 200 inliers < 0.9 x 250
   d = decideKeyframe(in, o);
   EXPECT_TRUE(d.insert);
-  EXPECT_NE(d.reason.find("covisibility"), std::string::npos) << d.reason;
+  EXPECT_NE(d.reason.find("established points"), std::string::npos) << d.reason;
   in.distance_to_similar_view = 0.3;
   in.quality = TrackingQuality::kWeak;  // weak tracking still asks for a keyframe
   EXPECT_TRUE(decideKeyframe(in, o).insert);
   in.quality = TrackingQuality::kGood;
-  o.covered_view_angle_deg = 0;  // off: the covisibility criterion decides again
+  o.covered_view_angle_deg = 0;  // off: the inlier criterion decides again
   EXPECT_TRUE(decideKeyframe(in, o).insert);
 }
 

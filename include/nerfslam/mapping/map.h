@@ -87,6 +87,9 @@ struct TrackingLocalMap {
   std::vector<int> observer_begin;
   std::vector<KeyframeId> observers;
   std::vector<int> keyframe_num_points;  // map points each of `keyframes` observes
+  // Of those, the established ones: observed by 3 keyframes or more (2 while the map has two;
+  // ORB-SLAM's nMinObs). A point just triangulated from two keyframes is not yet.
+  std::vector<int> keyframe_num_established;
   uint64_t structure_version = ~0ull;
   uint64_t version = ~0ull;  // Map::version() of the last build or refresh
   bool empty() const { return keyframes.empty(); }
