@@ -206,6 +206,7 @@ void NerfMapping::createModel() {
   nerf::FieldConfig fc;
   fc.log2_hashmap_size = opt_.log2_hashmap_size;
   model_ = std::make_unique<nerf::NerfModel>(nerf::NerfModel::create(fc, scene, uint64_t(opt_.seed)));
+  field_steps_before_ = 0;
   spdlog::info("NeRF: scene box fitted to {} map points and {} keyframes: scale {:.4g}, aabb_scale {}", pts.size(),
                cams.size(), scene.scale, scene.aabb_scale);
 }
@@ -352,11 +353,23 @@ void NerfMapping::refit() {
   }
   auto fresh = std::make_unique<nerf::NerfModel>(
       nerf::NerfModel::create(model_->field->config(), scene, uint64_t(opt_.seed) + uint64_t(refits)));
-  const double loss = distill(*model_, *fresh, opt_.distill_steps);
-  spdlog::info(
-      "NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), old field distilled in {} "
-      "steps (final loss {:.4f})",
-      old.scale, scene.scale, opt_.distill_steps, loss);
+  // A field trained for fewer steps than the distillation would take knows less than those steps
+  // would teach from the images: the new field starts from scratch instead.
+  const int64_t old_steps = field_steps_before_ + trainer_->steps();
+  field_steps_before_ = 0;
+  if (old_steps >= opt_.distill_steps) {
+    field_steps_before_ = old_steps;
+    const double loss = distill(*model_, *fresh, opt_.distill_steps);
+    spdlog::info(
+        "NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), old field distilled in {} "
+        "steps (final loss {:.4f})",
+        old.scale, scene.scale, opt_.distill_steps, loss);
+  } else {
+    spdlog::info(
+        "NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}); the old field had trained {} "
+        "steps (< {}), the new one starts afresh",
+        old.scale, scene.scale, old_steps, opt_.distill_steps);
+  }
   std::vector<nerf::TrainingView> views;
   for (size_t i = 0; i < trainer_->numViews(); ++i) views.push_back(trainer_->view(i));
   trainer_.reset();
@@ -460,6 +473,7 @@ void NerfMapping::resume(const std::filesystem::path& model_file, bool train) {
     step_offset_ = int64_t(model_->training_steps);
     stats_.steps = step_offset_;
   }
+  field_steps_before_ = int64_t(model_->training_steps);
   for (const auto& kf : map_.keyframes()) addKeyframe({kf.id, kf.T_world_cam, kf.frame});
   frozen_ = !train;
   spdlog::info("NeRF: continuing from {} ({} training steps, {} views){}", model_file.string(), model_->training_steps,
@@ -471,6 +485,9 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads) {
   if (!trainer_ || frozen_ || (seconds <= 0 && steps <= 0)) return 0;
   refreshPoses();
   if (!trainer_) return 0;
+  // The map is complete: fit the box to it now, not refit_check_steps into the training.
+  since_refit_check_ = 0;
+  if (checkRefit()) refit();
   updateWeights();
   if (threads > 0) trainer_->setThreads(threads);
   const auto t0 = Clock::now();
