@@ -356,9 +356,9 @@ void NerfMapping::refit() {
   // A field trained for fewer steps than the distillation would take knows less than those steps
   // would teach from the images: the new field starts from scratch instead.
   const int64_t old_steps = field_steps_before_ + trainer_->steps();
-  field_steps_before_ = 0;
-  if (old_steps >= opt_.distill_steps) {
-    field_steps_before_ = old_steps;
+  const bool distil = old_steps >= opt_.distill_steps;
+  field_steps_before_ = distil ? old_steps : 0;
+  if (distil) {
     const double loss = distill(*model_, *fresh, opt_.distill_steps);
     spdlog::info(
         "NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), old field distilled in {} "

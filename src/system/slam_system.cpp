@@ -479,15 +479,17 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   if (ref_local) {
     in.reference_keyframe_points = local_.keyframe_num_points[ref_slot];
     in.reference_keyframe_established_points = local_.keyframe_num_established[ref_slot];
-    for (const auto& m : res.matches) {
-      const auto it = std::lower_bound(local_.points.begin(), local_.points.end(), m.point_id,
-                                       [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });
-      if (it == local_.points.end() || it->id != m.point_id) continue;
-      const size_t i = static_cast<size_t>(it - local_.points.begin());
-      const auto b = local_.observers.begin() + local_.observer_begin[i],
-                 e = local_.observers.begin() + local_.observer_begin[i + 1];
-      in.tracked_reference_points += std::find(b, e, reference_) != e;
-    }
+    // Only the covered-view gate (off by default) asks which inliers the reference keyframe observes.
+    if (opt_.tracking.keyframes.covered_view_angle_deg > 0)
+      for (const auto& m : res.matches) {
+        const auto it = std::lower_bound(local_.points.begin(), local_.points.end(), m.point_id,
+                                         [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });
+        if (it == local_.points.end() || it->id != m.point_id) continue;
+        const size_t i = static_cast<size_t>(it - local_.points.begin());
+        const auto b = local_.observers.begin() + local_.observer_begin[i],
+                   e = local_.observers.begin() + local_.observer_begin[i + 1];
+        in.tracked_reference_points += std::find(b, e, reference_) != e;
+      }
   }
   in.mapping_idle = mapping_->idle();
   const KeyframeDecision d = decideKeyframe(in, opt_.tracking.keyframes);

@@ -192,7 +192,7 @@ TEST(KeyframeDecision, PtamAndCovisibilityCriteria) {
   in.frames_since_last_keyframe = 8;
   in.distance_to_nearest_keyframe = 0.5;  // 0.05 x depth
   in.reference_keyframe_points = 300;
-  in.tracked_reference_points = 190;
+  in.tracked_reference_points = 290;
   in.reference_keyframe_established_points = 210;  // 200 inliers >= 0.9 x 210
   EXPECT_FALSE(decideKeyframe(in, o).insert);
   in.distance_to_nearest_keyframe = 1.5;  // 0.15 x depth

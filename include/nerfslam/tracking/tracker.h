@@ -178,8 +178,9 @@ struct KeyframeDecisionInput {
   // Camera centre distance to the nearest keyframe of the local map (the newest included) whose
   // optical axis is within stopped_view_angle_deg of the camera's (infinity when there is none).
   double distance_to_same_view = std::numeric_limits<double>::infinity();
-  double median_scene_depth = 1;      // TrackingResult::median_depth
-  int tracked_reference_points = 0;   // inliers that the reference keyframe also observes
+  double median_scene_depth = 1;  // TrackingResult::median_depth
+  // Inliers that the reference keyframe also observes (counted only for the covered-view gate).
+  int tracked_reference_points = 0;
   int reference_keyframe_points = 0;  // map points the reference keyframe observes
   // Those of them observed by 3 keyframes or more (2 while the map has two): ORB-SLAM's nRefMatches,
   // which all of the frame's inliers are compared with (max_tracked_ratio).
