@@ -340,7 +340,7 @@ TEST(OffboardMapping, SplitNodesMatchTheSingleNodeAndTrainTheNerf) {
     }
     return best_corr >= min_correlation && matched >= 2;
   };
-  const bool good_view = waitFor(std::max(5.0, 85.0 - (ros::WallTime::now() - t_start).toSec()), checkViews);
+  const bool good_view = waitFor(std::max(5.0, 150.0 - (ros::WallTime::now() - t_start).toSec()), checkViews);
   std::printf(
       "~nerf_view of nerf_mapping_node: %zu received (%zu matched an input image), correlation with the "
       "input first %.3f, best %.3f; NeRF steps %g, views %g, PSNR recent %s dB, renders %g (mean %s ms); "
