@@ -358,18 +358,14 @@ void NerfMapping::refit() {
   const int64_t old_steps = field_steps_before_ + trainer_->steps();
   const bool distil = old_steps >= opt_.distill_steps;
   field_steps_before_ = distil ? old_steps : 0;
+  std::string how = fmt::format("the old field had trained {} steps (< {}), the new one starts afresh", old_steps,
+                                opt_.distill_steps);
   if (distil) {
     const double loss = distill(*model_, *fresh, opt_.distill_steps);
-    spdlog::info(
-        "NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), old field distilled in {} "
-        "steps (final loss {:.4f})",
-        old.scale, scene.scale, opt_.distill_steps, loss);
-  } else {
-    spdlog::info(
-        "NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}); the old field had trained {} "
-        "steps (< {}), the new one starts afresh",
-        old.scale, scene.scale, old_steps, opt_.distill_steps);
+    how = fmt::format("old field distilled in {} steps (final loss {:.4f})", opt_.distill_steps, loss);
   }
+  spdlog::info("NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), {}", old.scale, scene.scale,
+               how);
   std::vector<nerf::TrainingView> views;
   for (size_t i = 0; i < trainer_->numViews(); ++i) views.push_back(trainer_->view(i));
   trainer_.reset();
