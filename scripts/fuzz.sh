@@ -80,6 +80,7 @@ seed fuzz_trajectory kitti06_with_times "$KIT/poses.txt" "$KIT/times.txt"
 seed fuzz_trajectory euroc_csv "$EVO/V102_groundtruth.csv:40"
 seed fuzz_trajectory euroc_body_tum "$EUR/groundtruth_body_tum.txt:40"
 seed fuzz_trajectory tsukuba_traj "$DATA/new_tsukuba_150/cam_traj_truth.txt:20"
+seed fuzz_trajectory euroc_stamp_over_19_digits "=123456789012345678901234567890,1,2,3,1,0,0,0"   # a past finding
 
 for f in "$CAM"/*.yaml "$EUR/mav0/cam0/sensor.yaml"; do seed fuzz_camera_yaml "$(basename "$f")" "$f"; done
 seed fuzz_camera_yaml ros_camera_info '=image_width: 640

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <cerrno>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -201,13 +202,15 @@ Trajectory readEurocTrajectory(const fs::path& path) {
   for (const auto& dl : lines) {
     const auto v = parseNumbers(path, dl, 8, 1000, "timestamp[ns] px py pz qw qx qy qz ...");
     // Integer nanoseconds split into seconds and remainder keep full precision (a double holds a
-    // 19-digit stamp only to ~256 ns).
+    // 19-digit stamp only to ~256 ns). Longer digit strings overflow 64 bits: they keep the double.
     double t = v[0] * 1e-9;
     const std::string& s = dl.tokens[0];
-    if (s.size() > 9 && s.find_first_not_of("0123456789") == std::string::npos) {
-      const long long sec = std::stoll(s.substr(0, s.size() - 9));
-      const long long nsec = std::stoll(s.substr(s.size() - 9));
-      t = static_cast<double>(sec) + static_cast<double>(nsec) * 1e-9;
+    if (s.size() > 9 && s.size() <= 19 && s.find_first_not_of("0123456789") == std::string::npos) {
+      long long sec = 0, nsec = 0;
+      const char* split = s.data() + s.size() - 9;
+      if (std::from_chars(s.data(), split, sec).ec == std::errc() &&
+          std::from_chars(split, s.data() + s.size(), nsec).ec == std::errc())
+        t = static_cast<double>(sec) + static_cast<double>(nsec) * 1e-9;
     }
     const Eigen::Quaterniond q = checkedQuaternion(path, dl.line_no, v[4], v[5], v[6], v[7]);
     traj.push_back({t, SE3(q, Eigen::Vector3d(v[1], v[2], v[3]))});

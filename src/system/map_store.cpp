@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -620,7 +621,11 @@ uint64_t largestGenerationInNames(const fs::path& dir) {
     for (fs::directory_iterator it(d, ec), end; !ec && it != end; it.increment(ec)) {
       std::smatch m;
       const std::string name = it->path().filename().string();
-      if (std::regex_search(name, m, re)) g = std::max<uint64_t>(g, std::stoull(m[1].str()));
+      if (!std::regex_search(name, m, re)) continue;
+      // A number too long for 64 bits is not one of our generations.
+      const std::string digits = m[1].str();
+      uint64_t n = 0;
+      if (std::from_chars(digits.data(), digits.data() + digits.size(), n).ec == std::errc()) g = std::max(g, n);
     }
   return g;
 }

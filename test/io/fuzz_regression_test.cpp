@@ -10,6 +10,7 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/io/dataset.h"
+#include "nerfslam/io/trajectory.h"
 #include "test_support.h"
 
 namespace nerfslam {
@@ -130,6 +131,28 @@ TEST(FuzzRegression, FolderTimesLineOfOnlyFormFeeds) {
   EXPECT_DOUBLE_EQ(ds->timestamp(1), 0.75);
   test::writeText(dir / "times.txt", "\f\f\n0.5\n");
   expectDatasetError("folder", dir.path(), {"times.txt", "1 timestamps for 2 images"});
+}
+
+// fuzz_trajectory (CI, stop 19): an EuRoC timestamp of more than 19 digits is a finite double, but
+// the seconds part before its last 9 digits overflowed std::stoll, whose std::out_of_range escaped
+// readEurocTrajectory (and readTrajectory's auto-detection). It keeps the double's precision now.
+TEST(FuzzRegression, EurocTrajectoryTimestampOfMoreThan19Digits) {
+  test::TempDir dir;
+  const fs::path p = dir / "gt.csv";
+  test::writeText(p, "123456789012345678901234567890,1,2,3,1,0,0,0\n");
+  for (const auto& read : {+[](const fs::path& f) { return readEurocTrajectory(f); },
+                           +[](const fs::path& f) { return readTrajectory(f); }}) {
+    const Trajectory t = read(p);
+    ASSERT_EQ(t.size(), 1u);
+    EXPECT_NEAR(t[0].timestamp, 1.2345678901234568e20, 1e6);
+    EXPECT_EQ(t[0].pose.translation(), Eigen::Vector3d(1, 2, 3));
+  }
+  // 19 digits still read as seconds since the epoch, to well under a microsecond.
+  test::writeText(p, "1403715273262142976,1,2,3,1,0,0,0\n1403715273263142976,1,2,3,1,0,0,0\n");
+  const Trajectory t = readEurocTrajectory(p);
+  ASSERT_EQ(t.size(), 2u);
+  EXPECT_NEAR(t[0].timestamp, 1403715273.262142976, 1e-6);
+  EXPECT_NEAR(t[1].timestamp - t[0].timestamp, 1e-3, 1e-6);
 }
 
 }  // namespace

@@ -404,6 +404,20 @@ TEST(MapStore, RefusesMissingFiles) {
   EXPECT_NE(e.find("map.json: field 'files[0].crc32': missing"), std::string::npos) << e;
 }
 
+// A save over a folder whose manifest is unreadable starts after the largest generation number in
+// the file names. A stray name whose number does not fit 64 bits is not ours: it is ignored, not an
+// escaped std::out_of_range (found by review after fuzz_trajectory's std::stoll finding).
+TEST(MapStore, SaveOverAnUnreadableMapIgnoresNamesWithHugeNumbers) {
+  SavedSmallMap s;
+  test::writeText(s.dir / "map.json", "{ not json");
+  test::writeText(s.dir / "points.123456789012345678901234567890.bin", "stray");
+  test::writeText(s.dir / "points.000041.bin", "stray");
+  saveMapFolder(s.dir, *s.map, s.camera, sparseOptions());
+  const LoadedMap l = loadMapFolder(s.dir, s.camera);
+  EXPECT_EQ(l.generation, 42u) << "one after the largest generation that fits";
+  EXPECT_EQ(l.map->keyframeIds().size(), s.map->keyframeIds().size());
+}
+
 // ---- SIGKILL during saves -----------------------------------------------------------------------
 
 constexpr const char* kSaveLoopEnv = "NERFSLAM_MAP_SAVE_LOOP";
