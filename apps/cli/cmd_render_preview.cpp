@@ -7,6 +7,7 @@
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/parse.h"
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/render/preview.h"
 
@@ -24,24 +25,6 @@ struct PreviewArgs {
 };
 
 const char* kPalette[] = {"red", "green", "blue", "yellow", "magenta", "cyan", "orange", "white"};
-
-std::vector<double> numbers(const std::string& s, const char* what) {
-  std::vector<double> v;
-  size_t start = 0;
-  while (start <= s.size()) {
-    const size_t end = std::min(s.find(',', start), s.size());
-    const std::string item = s.substr(start, end - start);
-    try {
-      size_t p = 0;
-      v.push_back(std::stod(item, &p));
-      if (p != item.size()) throw std::invalid_argument("x");
-    } catch (const std::logic_error&) {
-      nerfslam::fail("{} '{}': '{}' is not a number", what, s, item);
-    }
-    start = end + 1;
-  }
-  return v;
-}
 
 nerfslam::cli::Registrar reg(
     "render-preview", "Draw point clouds, trajectories and keyframes to a PNG (headless, OSMesa)",
@@ -62,16 +45,8 @@ nerfslam::cli::Registrar reg(
         using namespace nerfslam;
         using namespace nerfslam::render;
         PreviewOptions o = a->opts;
-        const auto x = a->size.find_first_of("xX");
-        std::vector<double> wh;
-        if (x != std::string::npos) wh = numbers(a->size.substr(0, x) + "," + a->size.substr(x + 1), "--size");
-        if (wh.size() != 2 || wh[0] != std::floor(wh[0]) || wh[1] != std::floor(wh[1]))
-          fail("--size '{}': expected WIDTHxHEIGHT, e.g. 1280x960", a->size);
-        if (wh[0] < 16 || wh[1] < 16 || wh[0] > 8192 || wh[1] > 8192)
-          fail("--size {}: width and height must be in 16..8192", a->size);
-        o.width = static_cast<int>(wh[0]);
-        o.height = static_cast<int>(wh[1]);
-        const auto up = numbers(a->up, "--up");
+        parseImageSize(a->size, "--size", 16, &o.width, &o.height);
+        const auto up = parseNumberList(a->up, "--up");
         if (up.size() != 3 || Eigen::Vector3d(up[0], up[1], up[2]).norm() < 1e-9)
           fail("--up '{}': need a non-zero x,y,z", a->up);
         o.up = Eigen::Vector3d(up[0], up[1], up[2]);

@@ -6,6 +6,7 @@
 
 #include "command.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/parse.h"
 #include "nerfslam/render/synth.h"
 
 namespace {
@@ -17,37 +18,6 @@ struct SynthArgs {
   std::string out;
   int64_t seed = 1;
 };
-
-void parseSize(const std::string& s, int* w, int* h) {
-  const auto x = s.find_first_of("xX");
-  try {
-    if (x == std::string::npos) throw std::invalid_argument("no x");
-    size_t p1 = 0, p2 = 0;
-    const long lw = std::stol(s.substr(0, x), &p1), lh = std::stol(s.substr(x + 1), &p2);
-    if (p1 != x || p2 != s.size() - x - 1) throw std::invalid_argument("trailing");
-    if (lw < 1 || lh < 1 || lw > 8192 || lh > 8192) nerfslam::fail("--size {}: width and height must be in 1..8192", s);
-    *w = static_cast<int>(lw);
-    *h = static_cast<int>(lh);
-  } catch (const std::logic_error&) {
-    nerfslam::fail("--size '{}': expected WIDTHxHEIGHT, e.g. 640x480", s);
-  }
-}
-
-std::vector<double> parseList(const std::string& s, const char* what) {
-  std::vector<double> v;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    try {
-      size_t p = 0;
-      v.push_back(std::stod(item, &p));
-      if (p != item.size()) throw std::invalid_argument("trailing");
-    } catch (const std::logic_error&) {
-      nerfslam::fail("{} '{}': '{}' is not a number", what, s, item);
-    }
-  }
-  return v;
-}
 
 nerfslam::cli::Registrar reg(
     "synth", "Render a ground-truth synthetic RGB-D sequence (TUM layout, camera.yaml, transforms.json)",
@@ -83,10 +53,10 @@ nerfslam::cli::Registrar reg(
         o.seed = static_cast<uint64_t>(a->seed);
         if (!a->size.empty()) {
           if (!o.camera_yaml.empty()) nerfslam::fail("give either --size or --camera, not both");
-          parseSize(a->size, &o.width, &o.height);
+          nerfslam::parseImageSize(a->size, "--size", 1, &o.width, &o.height);
         }
         if (!a->distortion.empty()) {
-          o.distortion = parseList(a->distortion, "--distortion");
+          o.distortion = nerfslam::parseNumberList(a->distortion, "--distortion");
           if (o.distortion.size() != 4) nerfslam::fail("--distortion '{}': need 4 numbers k1,k2,p1,p2", a->distortion);
         }
         const auto r = nerfslam::render::writeSynthSequence(o, a->out);

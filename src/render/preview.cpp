@@ -14,6 +14,7 @@
 
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/parse.h"
 #include "nerfslam/render/renderer.h"
 #include "nerfslam/render/trajectory.h"
 
@@ -117,23 +118,6 @@ PreviewCloud loadPointCloudPly(const fs::path& path) {
 
 namespace {
 
-std::vector<double> parseNumbers(const std::string& s, const std::string& what) {
-  std::vector<double> v;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    item.erase(std::remove(item.begin(), item.end(), ' '), item.end());
-    try {
-      size_t p = 0;
-      v.push_back(std::stod(item, &p));
-      if (p != item.size() || !std::isfinite(v.back())) throw std::invalid_argument("bad");
-    } catch (const std::logic_error&) {
-      fail("{}: '{}' is not a number", what, item);
-    }
-  }
-  return v;
-}
-
 Vertex vtx(const Vector3d& p, const cv::Vec3b& bgr) {
   Vertex v;
   v.x = static_cast<float>(p.x());
@@ -158,7 +142,8 @@ void parseView(const std::string& spec, Eigen::Vector3d* eye, Eigen::Vector3d* t
     while (!s.empty() && (s.back() == ',' || s.back() == ' ' || s.back() == ';')) s.pop_back();
     return s;
   };
-  const auto e = parseNumbers(part(pe + 4, pt), "--view eye"), t = parseNumbers(part(pt + 7, pe), "--view target");
+  const auto e = parseNumberList(part(pe + 4, pt), "--view eye"),
+             t = parseNumberList(part(pt + 7, pe), "--view target");
   if (e.size() != 3 || t.size() != 3) fail("--view '{}': eye and target need 3 numbers each", spec);
   *eye = Vector3d(e[0], e[1], e[2]);
   *target = Vector3d(t[0], t[1], t[2]);
@@ -224,6 +209,15 @@ cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
   if (opts.width < 16 || opts.height < 16 || opts.width > 8192 || opts.height > 8192)
     fail("preview size {}x{} invalid: width and height must be in 16..8192", opts.width, opts.height);
   if (!(opts.fov_deg > 1 && opts.fov_deg < 170)) fail("preview fov {} must be in (1, 170) degrees", opts.fov_deg);
+  if (!opts.up.allFinite() || opts.up.norm() < 1e-9) fail("preview up direction must be finite and non-zero");
+  if (!(opts.point_size > 0 && opts.point_size <= 64))
+    fail("preview point size {} must be in (0, 64]", opts.point_size);
+  if (!(opts.line_width > 0 && opts.line_width <= 64))
+    fail("preview line width {} must be in (0, 64]", opts.line_width);
+  if (!(opts.frustum_size >= 0 && std::isfinite(opts.frustum_size)))
+    fail("preview frustum size {} must be finite and >= 0 (0: automatic)", opts.frustum_size);
+  if ((opts.eye && !opts.eye->allFinite()) || (opts.target && !opts.target->allFinite()))
+    fail("preview eye and target must be finite");
   Vector3d eye, target;
   autoView(scene, opts, &eye, &target);  // also checks there is something to draw
   if (opts.eye && opts.target) {

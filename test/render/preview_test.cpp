@@ -1,5 +1,7 @@
 // Headless previews: points land where the chosen view projects them, the automatic view fits the
 // content, and `nerfslam render-preview` draws clouds, trajectories and keyframes from files.
+#include <limits>
+
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -82,6 +84,19 @@ TEST(Preview, AutomaticViewFitsEverything) {
   EXPECT_THROW(renderPreview(PreviewScene{}, o), Error);
   o.width = 0;
   EXPECT_THROW(renderPreview(s, o), Error);
+  // Non-finite options are refused, not drawn as an empty image.
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  o.width = 320;
+  for (int k = 0; k < 5; ++k) {
+    SCOPED_TRACE(k);
+    PreviewOptions bad = o;
+    if (k == 0) bad.up = Eigen::Vector3d(nan, 0, 1);
+    if (k == 1) bad.point_size = static_cast<float>(nan);
+    if (k == 2) bad.frustum_size = nan;
+    if (k == 3) bad.eye = Eigen::Vector3d(nan, 0, 0), bad.target = Eigen::Vector3d::Zero();
+    if (k == 4) bad.up = Eigen::Vector3d::Zero();
+    EXPECT_THROW(renderPreview(s, bad), Error);
+  }
 }
 
 TEST(Preview, ParsesViewsAndColours) {
@@ -198,6 +213,13 @@ TEST(PreviewCli, DrawsCloudTrajectoriesAndKeyframes) {
                    "'");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("--size"), std::string::npos) << r.output;
+  for (const char* bad :
+       {"--up nan,0,1", "--point-size nan", "--frustum-size inf", "--view eye=nan,0,0,target=0,0,0"}) {
+    r = test::runCli("render-preview --trajectory '" + (tmp / "gt.txt").string() + "' " + bad + " --out '" +
+                     out.string() + "'");
+    EXPECT_EQ(r.exit_code, 1) << bad;
+    EXPECT_NE(r.output.find("error"), std::string::npos) << bad << ": " << r.output;
+  }
 }
 
 }  // namespace
