@@ -10,6 +10,8 @@
 #include <fstream>
 #include <random>
 
+#include "nerfslam/core/error.h"
+
 namespace nerfslam::test {
 namespace fs = std::filesystem;
 
@@ -36,6 +38,15 @@ TempDir::~TempDir() {
   std::error_code ec;
   fs::permissions(path_, fs::perms::owner_all, fs::perm_options::add, ec);
   fs::remove_all(path_, ec);
+}
+
+std::string errorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
 }
 
 void writeText(const fs::path& path, const std::string& content) {

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 
 #include <opencv2/core.hpp>
@@ -31,6 +32,9 @@ class TempDir {
 
 // Writes `content` to `path` (binary, parents created): for building test inputs.
 void writeText(const std::filesystem::path& path, const std::string& content);
+
+// The message of the nerfslam::Error f throws; empty when it throws none (other exceptions escape).
+std::string errorOf(const std::function<void()>& f);
 
 struct CommandResult {
   int exit_code = -1;

@@ -14,15 +14,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string errorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
-
 TEST(Calibration, ParseBoardSize) {
   const ChessboardSpec b = parseBoardSize("9x6", 0.025);
   EXPECT_EQ(b.cols, 9);
@@ -30,23 +21,24 @@ TEST(Calibration, ParseBoardSize) {
   EXPECT_EQ(b.square, 0.025);
   EXPECT_EQ(parseBoardSize("7X5", 0.03).rows, 5);
   for (const char* bad : {"9", "9x", "x6", "9*6", "9x6x2", "nine by six", "1x6", "-9x6", ""}) {
-    const std::string msg = errorOf([&] { parseBoardSize(bad, 0.025); });
+    const std::string msg = test::errorOf([&] { parseBoardSize(bad, 0.025); });
     EXPECT_NE(msg.find("--board"), std::string::npos) << bad << ": " << msg;
     EXPECT_NE(msg.find(std::string("'") + bad + "'"), std::string::npos) << msg;
   }
-  EXPECT_NE(errorOf([] { parseBoardSize("9x6", 0.0); }).find("--square"), std::string::npos);
-  EXPECT_NE(errorOf([] { parseBoardSize("9x6", -0.1); }).find("--square"), std::string::npos);
+  EXPECT_NE(test::errorOf([] { parseBoardSize("9x6", 0.0); }).find("--square"), std::string::npos);
+  EXPECT_NE(test::errorOf([] { parseBoardSize("9x6", -0.1); }).find("--square"), std::string::npos);
 }
 
 TEST(Calibration, NoImagesIsAnError) {
   test::TempDir dir;
   std::ofstream(dir / "notes.txt") << "not an image";
-  const std::string msg = errorOf([&] { calibrateFromImages(dir.path(), parseBoardSize("9x6", 0.025)); });
+  const std::string msg = test::errorOf([&] { calibrateFromImages(dir.path(), parseBoardSize("9x6", 0.025)); });
   EXPECT_NE(msg.find(dir.path().string()), std::string::npos) << msg;
   EXPECT_NE(msg.find("no images"), std::string::npos) << msg;
-  EXPECT_NE(
-      errorOf([&] { calibrateFromImages(dir / "missing", parseBoardSize("9x6", 0.025)); }).find("not a directory"),
-      std::string::npos);
+  EXPECT_NE(test::errorOf([&] {
+              calibrateFromImages(dir / "missing", parseBoardSize("9x6", 0.025));
+            }).find("not a directory"),
+            std::string::npos);
 }
 
 TEST(Calibration, TooFewBoardsIsAnError) {
@@ -55,7 +47,7 @@ TEST(Calibration, TooFewBoardsIsAnError) {
   cv::imwrite((dir / "a.png").string(), cv::Mat(480, 640, CV_8UC1, cv::Scalar(128)));
   cv::imwrite((dir / "b.png").string(), cv::Mat(480, 640, CV_8UC1, cv::Scalar(30)));
   std::ofstream(dir / "c.jpg") << "garbage";
-  const std::string msg = errorOf([&] { calibrateFromImages(dir.path(), parseBoardSize("9x6", 0.025)); });
+  const std::string msg = test::errorOf([&] { calibrateFromImages(dir.path(), parseBoardSize("9x6", 0.025)); });
   EXPECT_NE(msg.find("found in 0 of 3 images"), std::string::npos) << msg;
   EXPECT_NE(msg.find("at least 3"), std::string::npos) << msg;
 }
@@ -106,7 +98,7 @@ TEST(Calibration, OpenCvChessboardEquidistant) {
 
 TEST(Calibration, WrongBoardSizeFindsNothing) {
   NERFSLAM_REQUIRE_DATA(dir, "opencv_chessboard");
-  const std::string msg = errorOf([&] { calibrateFromImages(dir, parseBoardSize("12x11", 0.025)); });
+  const std::string msg = test::errorOf([&] { calibrateFromImages(dir, parseBoardSize("12x11", 0.025)); });
   EXPECT_NE(msg.find("12x11"), std::string::npos) << msg;
   EXPECT_NE(msg.find("at least 3"), std::string::npos) << msg;
 }

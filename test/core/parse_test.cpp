@@ -1,22 +1,12 @@
 #include "nerfslam/core/parse.h"
 
-#include <functional>
-
 #include <gtest/gtest.h>
 
 #include "nerfslam/core/error.h"
+#include "test_support.h"
 
 namespace nerfslam {
 namespace {
-
-std::string errorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
 
 TEST(Parse, NumberListsOfFiniteNumbers) {
   EXPECT_EQ(parseNumberList("1,2.5,-3e2", "--x"), (std::vector<double>{1, 2.5, -300}));
@@ -25,7 +15,7 @@ TEST(Parse, NumberListsOfFiniteNumbers) {
   EXPECT_TRUE(parseNumberList("  ", "--x").empty());
   for (const char* bad : {"nan,0,1", "1,inf", "1,,2", "1,", "1x", "1,2,three", "-nan"}) {
     SCOPED_TRACE(bad);
-    const std::string e = errorOf([&] { parseNumberList(bad, "--up"); });
+    const std::string e = test::errorOf([&] { parseNumberList(bad, "--up"); });
     EXPECT_NE(e.find(std::string("--up '") + bad + "'"), std::string::npos) << e;
     EXPECT_NE(e.find("is not a finite number"), std::string::npos) << e;
   }
@@ -42,12 +32,12 @@ TEST(Parse, ImageSizes) {
   for (const char* bad :
        {"640", "x480", "640x", "-5x10", "6.5x10", "640x480x3", " 640x480", "99999999999999999999x1"}) {
     SCOPED_TRACE(bad);
-    const std::string e = errorOf([&] { parseImageSize(bad, "--size", 1, &w, &h); });
+    const std::string e = test::errorOf([&] { parseImageSize(bad, "--size", 1, &w, &h); });
     EXPECT_NE(e.find("expected WIDTHxHEIGHT"), std::string::npos) << e;
   }
   for (const char* bad : {"0x480", "640x0", "9000x480", "15x100"}) {
     SCOPED_TRACE(bad);
-    const std::string e = errorOf([&] { parseImageSize(bad, "--size", 16, &w, &h); });
+    const std::string e = test::errorOf([&] { parseImageSize(bad, "--size", 16, &w, &h); });
     EXPECT_NE(e.find("must be in 16..8192"), std::string::npos) << e;
   }
 }

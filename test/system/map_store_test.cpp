@@ -187,15 +187,6 @@ std::string fingerprint(const Map& m) {
   return s;
 }
 
-std::string errorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
-
 json readJson(const fs::path& p) {
   std::ifstream in(p);
   EXPECT_TRUE(in.good()) << p;
@@ -282,7 +273,7 @@ TEST(MapStore, NerfModelFileIsStoredAndAFailingWriterKeepsThePreviousMap) {
   EXPECT_EQ(content, "model bytes");
 
   const auto before = folderFiles(dir / "m");
-  const std::string e = errorOf([&] {
+  const std::string e = test::errorOf([&] {
     saveMapFolder(dir / "m", *map, cam, sparseOptions(), [](const fs::path&) { throw Error("no model yet"); });
   });
   EXPECT_NE(e.find("no model yet"), std::string::npos) << e;
@@ -312,18 +303,18 @@ TEST(MapStore, RefusesAnotherFormatVersion) {
   for (int v : {kMapFormatVersion - 1, kMapFormatVersion + 1}) {
     j["format_version"] = v;
     test::writeText(s.dir / "map.json", j.dump());
-    const std::string e = errorOf([&] { loadMapFolder(s.dir, s.camera); });
+    const std::string e = test::errorOf([&] { loadMapFolder(s.dir, s.camera); });
     EXPECT_NE(e.find("map.json: field 'format_version'"), std::string::npos) << e;
     EXPECT_NE(e.find("format version " + std::to_string(v)), std::string::npos) << e;
     EXPECT_NE(e.find(v < kMapFormatVersion ? "older" : "newer"), std::string::npos) << e;
     // Nor is a map of another version overwritten by a save.
-    const std::string es = errorOf([&] { saveMapFolder(s.dir, *s.map, s.camera, sparseOptions()); });
+    const std::string es = test::errorOf([&] { saveMapFolder(s.dir, *s.map, s.camera, sparseOptions()); });
     EXPECT_NE(es.find("format_version"), std::string::npos) << es;
   }
   j["format"] = "something-else";
   j["format_version"] = kMapFormatVersion;
   test::writeText(s.dir / "map.json", j.dump());
-  const std::string e = errorOf([&] { loadMapFolder(s.dir); });
+  const std::string e = test::errorOf([&] { loadMapFolder(s.dir); });
   EXPECT_NE(e.find("map.json: field 'format'"), std::string::npos) << e;
 }
 
@@ -332,16 +323,16 @@ TEST(MapStore, RefusesAMapMadeWithAnotherCamera) {
   const std::string camera_file = fileOfRole(s.dir, "camera");
   Camera other = s.camera;
   other.fx *= 1.01;
-  std::string e = errorOf([&] { loadMapFolder(s.dir, other); });
+  std::string e = test::errorOf([&] { loadMapFolder(s.dir, other); });
   EXPECT_NE(e.find(camera_file + ": field 'fx'"), std::string::npos) << e;
   EXPECT_NE(e.find("another camera"), std::string::npos) << e;
   other = s.camera.scaled(2.0);
-  e = errorOf([&] { loadMapFolder(s.dir, other); });
+  e = test::errorOf([&] { loadMapFolder(s.dir, other); });
   EXPECT_NE(e.find("field 'width'"), std::string::npos) << e;
   other = s.camera;
   other.distortion_model = DistortionModel::kRadTan;
   other.distortion = {0.01, 0, 0, 0};
-  e = errorOf([&] { loadMapFolder(s.dir, other); });
+  e = test::errorOf([&] { loadMapFolder(s.dir, other); });
   EXPECT_NE(e.find("field 'distortion_model'"), std::string::npos) << e;
   EXPECT_NO_THROW(loadMapFolder(s.dir, s.camera));
 }
@@ -354,7 +345,7 @@ TEST(MapStore, RefusesTruncatedAndCorruptedFiles) {
     const fs::path p = s.dir / name;
     const auto size = fs::file_size(p);
     fs::resize_file(p, size / 2);
-    std::string e = errorOf([&] { loadMapFolder(s.dir, s.camera); });
+    std::string e = test::errorOf([&] { loadMapFolder(s.dir, s.camera); });
     EXPECT_NE(e.find(name + ": field 'size'"), std::string::npos) << e;
     EXPECT_NE(e.find("truncated"), std::string::npos) << e;
     // Same size, one byte changed.
@@ -367,7 +358,7 @@ TEST(MapStore, RefusesTruncatedAndCorruptedFiles) {
       f.seekp(static_cast<std::streamoff>(fs::file_size(q) / 2));
       f.put(static_cast<char>(c ^ 0x20));
     }
-    e = errorOf([&] { loadMapFolder(t.dir, t.camera); });
+    e = test::errorOf([&] { loadMapFolder(t.dir, t.camera); });
     EXPECT_NE(e.find(fileOfRole(t.dir, role) + ": field 'crc32'"), std::string::npos) << e;
     EXPECT_NE(e.find("corrupted"), std::string::npos) << e;
   }
@@ -375,7 +366,7 @@ TEST(MapStore, RefusesTruncatedAndCorruptedFiles) {
   SavedSmallMap s;
   const auto size = fs::file_size(s.dir / "map.json");
   fs::resize_file(s.dir / "map.json", size - 20);
-  const std::string e = errorOf([&] { loadMapFolder(s.dir); });
+  const std::string e = test::errorOf([&] { loadMapFolder(s.dir); });
   EXPECT_NE(e.find("map.json: not valid JSON"), std::string::npos) << e;
 }
 
@@ -385,22 +376,22 @@ TEST(MapStore, RefusesMissingFiles) {
     SavedSmallMap s;
     const std::string name = fileOfRole(s.dir, role);
     fs::remove(s.dir / name);
-    const std::string e = errorOf([&] { loadMapFolder(s.dir, s.camera); });
+    const std::string e = test::errorOf([&] { loadMapFolder(s.dir, s.camera); });
     EXPECT_NE(e.find(name + ": missing"), std::string::npos) << e;
   }
   SavedSmallMap s;
   fs::remove(s.dir / "map.json");
-  std::string e = errorOf([&] { loadMapFolder(s.dir); });
+  std::string e = test::errorOf([&] { loadMapFolder(s.dir); });
   EXPECT_NE(e.find("map.json: missing"), std::string::npos) << e;
   EXPECT_NE(e.find("not a map folder"), std::string::npos) << e;
-  e = errorOf([&] { loadMapFolder(s.tmp / "nowhere"); });
+  e = test::errorOf([&] { loadMapFolder(s.tmp / "nowhere"); });
   EXPECT_NE(e.find("nowhere: map folder not found"), std::string::npos) << e;
   // A manifest entry missing a field.
   SavedSmallMap t;
   json j = readJson(t.dir / "map.json");
   j["files"][0].erase("crc32");
   test::writeText(t.dir / "map.json", j.dump());
-  e = errorOf([&] { loadMapFolder(t.dir); });
+  e = test::errorOf([&] { loadMapFolder(t.dir); });
   EXPECT_NE(e.find("map.json: field 'files[0].crc32': missing"), std::string::npos) << e;
 }
 
