@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cstdint>
 #include <cstring>
 #include <fstream>
 #include <iterator>
 
+#include <fmt/format.h>
 #include <opencv2/imgcodecs.hpp>
 
 #include "nerfslam/core/error.h"
@@ -20,18 +22,31 @@ bool startsWith(const std::vector<uchar>& b, const unsigned char* sig, size_t n)
   return b.size() >= n && std::memcmp(b.data(), sig, n) == 0;
 }
 
+// A PNG chunk type for a message: its four letters, or hex when they are not letters.
+std::string chunkName(const uchar* t) {
+  if (std::all_of(t, t + 4, [](uchar c) { return std::isalpha(c); })) return std::string(t, t + 4);
+  return fmt::format("0x{:02x}{:02x}{:02x}{:02x}", t[0], t[1], t[2], t[3]);
+}
+
 // OpenCV decodes a cut-off PNG or JPEG into a partly grey image with only a libpng/libjpeg warning,
-// so look for the format's end marker: PNG's IEND chunk, JPEG's EOI (FF D9, possibly followed by
-// padding or an appended trailer; searched in the last 64 KiB).
+// so look for the format's end marker. PNG: walk the chunks to IEND, each declared length within
+// the bytes that follow (libpng would allocate and clear a declared 1 GB text chunk before finding
+// the file short). JPEG: EOI (FF D9, possibly followed by padding or an appended trailer; searched in
+// the last 64 KiB).
 void checkComplete(const std::vector<uchar>& b, const fs::path& path) {
   static const unsigned char kPng[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
   static const unsigned char kJpeg[3] = {0xff, 0xd8, 0xff};
   if (startsWith(b, kPng, 8)) {
-    static const unsigned char kIend[8] = {0, 0, 0, 0, 'I', 'E', 'N', 'D'};
-    const size_t window = std::min<size_t>(b.size(), 4096);
-    auto first = b.end() - static_cast<std::ptrdiff_t>(window);
-    if (std::search(first, b.end(), kIend, kIend + 8) == b.end())
-      fail("{}: truncated PNG image (no IEND chunk; {} bytes)", path.string(), b.size());
+    size_t i = 8;  // length (4, big-endian), type (4), data (length), CRC (4)
+    while (true) {
+      if (b.size() - i < 12) fail("{}: truncated PNG image (no IEND chunk; {} bytes)", path.string(), b.size());
+      const uint64_t n = (uint64_t{b[i]} << 24) | (uint64_t{b[i + 1]} << 16) | (uint64_t{b[i + 2]} << 8) | b[i + 3];
+      if (n > b.size() - i - 12)
+        fail("{}: truncated PNG image: chunk '{}' at byte {} declares {} bytes but only {} follow", path.string(),
+             chunkName(&b[i + 4]), i, n, b.size() - i - 12);
+      if (std::memcmp(&b[i + 4], "IEND", 4) == 0) return;
+      i += 12 + n;
+    }
   } else if (startsWith(b, kJpeg, 3)) {
     const size_t window = std::min<size_t>(b.size(), 65536);
     bool found = false;
