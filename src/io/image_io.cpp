@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include "image_header.h"
 #include "nerfslam/core/error.h"
 
 namespace nerfslam {
@@ -17,6 +18,10 @@ namespace nerfslam {
 namespace fs = std::filesystem;
 
 namespace {
+
+// Larger than any camera we know (16384 per side, 64 megapixels: 3 bytes a pixel is 192 MB).
+constexpr int64_t kMaxImageSide = 16384;
+constexpr int64_t kMaxImagePixels = int64_t{64} << 20;
 
 bool startsWith(const std::vector<uchar>& b, const unsigned char* sig, size_t n) {
   return b.size() >= n && std::memcmp(b.data(), sig, n) == 0;
@@ -70,6 +75,12 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
   std::vector<uchar> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   if (in.bad()) fail("{}: read error", path.string());
   if (bytes.empty()) fail("{}: empty image file", path.string());
+  const auto header = io_detail::sniffImageHeader(bytes);
+  if (!header) fail("{}: not a readable image (unknown format: PNG, JPEG, BMP, TIFF or PNM expected)", path.string());
+  if (header->width > kMaxImageSide || header->height > kMaxImageSide ||
+      header->width * header->height > kMaxImagePixels)
+    fail("{}: {} header declares {}x{} pixels, more than this reader accepts ({} per side, {} megapixels)",
+         path.string(), header->format, header->width, header->height, kMaxImageSide, kMaxImagePixels >> 20);
   checkComplete(bytes, path);
   int flags = cv::IMREAD_GRAYSCALE;
   if (mode == ImageMode::kColor) flags = cv::IMREAD_COLOR;

@@ -3,7 +3,9 @@
 #include <fstream>
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
+#include "io/image_header.h"
 #include "nerfslam/core/error.h"
 #include "test_support.h"
 
@@ -93,6 +95,85 @@ TEST(ImageIo, ModesAndErrors) {
   // JPEG data under a .png name decodes by content.
   spit(tmp / "jpeg_named.png", jpg);
   EXPECT_EQ(readImage(tmp / "jpeg_named.png", ImageMode::kColor).size(), cv::Size(200, 200));
+}
+
+// The header sniffer reads the size every format we accept declares, as OpenCV writes it, and
+// recognises nothing else.
+TEST(ImageIo, HeaderSizesOfEveryFormat) {
+  cv::Mat img(23, 37, CV_8UC3);
+  cv::randu(img, 0, 255);
+  cv::Mat gray;
+  cv::cvtColor(img, gray, cv::COLOR_BGR2GRAY);
+  const std::vector<std::pair<std::string, std::string>> formats = {
+      {".png", "PNG"}, {".jpg", "JPEG"}, {".bmp", "BMP"}, {".tif", "TIFF"}, {".ppm", "PNM"}, {".pgm", "PNM"}};
+  for (const auto& [ext, name] : formats) {
+    SCOPED_TRACE(ext);
+    std::vector<uchar> bytes;
+    ASSERT_TRUE(cv::imencode(ext, ext == ".pgm" ? gray : img, bytes));
+    const auto h = io_detail::sniffImageHeader(bytes);
+    ASSERT_TRUE(h.has_value());
+    EXPECT_EQ(std::string(h->format), name);
+    EXPECT_EQ(h->width, 37);
+    EXPECT_EQ(h->height, 23);
+  }
+  std::vector<uchar> bytes;
+  ASSERT_TRUE(cv::imencode(".ppm", img, bytes, {cv::IMWRITE_PXM_BINARY, 0}));  // ASCII P3
+  EXPECT_EQ(io_detail::sniffImageHeader(bytes)->width, 37);
+  const std::string pnm_comment = "P5\n# made by hand\n37 # width\n23\n255\n";
+  EXPECT_EQ(io_detail::sniffImageHeader(std::vector<uchar>(pnm_comment.begin(), pnm_comment.end()))->height, 23);
+  for (const std::string other : {"RIFF\x10\0\0\0WEBPVP8 ", "#?RADIANCE\n", "P7\nWIDTH 4\n", "GIF89a", "text"})
+    EXPECT_FALSE(io_detail::sniffImageHeader(std::vector<uchar>(other.begin(), other.end())).has_value()) << other;
+}
+
+// A header that declares a huge image is refused before decoding: OpenCV would allocate the whole
+// image first (2.7 GB for 30000x30000 colour) and only then find the data short.
+TEST(ImageIo, RefusesHeadersDeclaringHugeImages) {
+  test::TempDir tmp;
+  cv::Mat img(23, 37, CV_8UC3, cv::Scalar(1, 2, 3));
+  auto be16 = [](std::vector<uchar>& b, size_t at, uint32_t v) {
+    b[at] = static_cast<uchar>(v >> 8);
+    b[at + 1] = static_cast<uchar>(v);
+  };
+  std::vector<uchar> png, jpg, bmp;
+  ASSERT_TRUE(cv::imencode(".png", img, png));
+  ASSERT_TRUE(cv::imencode(".jpg", img, jpg));
+  ASSERT_TRUE(cv::imencode(".bmp", img, bmp));
+  be16(png, 18, 30000);  // IHDR width and height (big-endian 32-bit at 16 and 20)
+  be16(png, 22, 30000);
+  size_t sof = 2;  // the SOF0 marker OpenCV writes
+  while (sof + 1 < jpg.size() && !(jpg[sof] == 0xff && jpg[sof + 1] == 0xc0)) ++sof;
+  ASSERT_LT(sof + 9, jpg.size());
+  be16(jpg, sof + 5, 30000);
+  be16(jpg, sof + 7, 30000);
+  bmp[19] = 0x75, bmp[18] = 0x30, bmp[23] = 0x75, bmp[22] = 0x30;  // little-endian 30000
+  const std::string pnm = "P6\n30000 30000\n255\n" + std::string(16, 'x');
+  const std::vector<std::pair<std::string, std::string>> files = {{"png", std::string(png.begin(), png.end())},
+                                                                  {"jpg", std::string(jpg.begin(), jpg.end())},
+                                                                  {"bmp", std::string(bmp.begin(), bmp.end())},
+                                                                  {"ppm", pnm}};
+  for (const auto& [ext, content] : files) {
+    SCOPED_TRACE(ext);
+    const fs::path p = tmp / ("huge." + ext);
+    spit(p, content);
+    try {
+      readImage(p, ImageMode::kColor);
+      ADD_FAILURE() << "no error";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("huge." + ext + ": "), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("header declares 30000x30000 pixels"), std::string::npos) << e.what();
+    }
+  }
+  // Formats OpenCV would decode but we do not accept.
+  std::vector<uchar> webp;
+  if (cv::imencode(".webp", img, webp)) {
+    spit(tmp / "w.png", std::string(webp.begin(), webp.end()));
+    try {
+      readImage(tmp / "w.png");
+      ADD_FAILURE() << "no error for WebP";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("unknown format"), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

@@ -10,9 +10,11 @@
 
 namespace nerfslam {
 
-// Decodes an image. Throws nerfslam::Error naming the file when it is missing, not an image,
-// or truncated (OpenCV decodes a truncated PNG/JPEG partially with only a warning, so the
-// file is checked for its end-of-image marker: PNG IEND chunk, JPEG EOI).
+// Decodes a PNG, JPEG, BMP, TIFF or PNM image (by content, whatever the extension). Throws
+// nerfslam::Error naming the file when it is missing, in another format, declares more than 16384
+// pixels a side or 64 megapixels (checked before decoding), or is truncated (OpenCV decodes a
+// truncated PNG/JPEG partially with only a warning, so the PNG's chunks are walked to IEND and the
+// JPEG's end-of-image marker is looked for).
 // kGray/kColor always give 8-bit images (16-bit data is scaled down by 1/256).
 cv::Mat readImage(const std::filesystem::path& path, ImageMode mode = ImageMode::kGray);
 
