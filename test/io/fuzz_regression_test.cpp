@@ -134,7 +134,7 @@ TEST(FuzzRegression, FolderTimesLineOfOnlyFormFeeds) {
   expectDatasetError("folder", dir.path(), {"times.txt", "1 timestamps for 2 images"});
 }
 
-// fuzz_trajectory (CI, stop 19): an EuRoC timestamp of more than 19 digits is a finite double, but
+// fuzz_trajectory (CI, stop 18): an EuRoC timestamp of more than 19 digits is a finite double, but
 // the seconds part before its last 9 digits overflowed std::stoll, whose std::out_of_range escaped
 // readEurocTrajectory (and readTrajectory's auto-detection). It keeps the double's precision now.
 TEST(FuzzRegression, EurocTrajectoryTimestampOfMoreThan19Digits) {
