@@ -1,6 +1,7 @@
 #include "nerfslam/core/parse.h"
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 
@@ -18,7 +19,7 @@ std::vector<double> parseNumberList(const std::string& text, const std::string& 
     const size_t a = item.find_first_not_of(" \t"), b = item.find_last_not_of(" \t");
     item = a == std::string::npos ? std::string() : item.substr(a, b - a + 1);
     char* stop = nullptr;
-    const double d = item.empty() ? 0.0 : std::strtod(item.c_str(), &stop);
+    const double d = std::strtod(item.c_str(), &stop);
     if (item.empty() || *stop != '\0' || !std::isfinite(d))
       fail("{} '{}': '{}' is not a finite number", what, text, item);
     v.push_back(d);
@@ -30,19 +31,19 @@ std::vector<double> parseNumberList(const std::string& text, const std::string& 
 void parseImageSize(const std::string& text, const std::string& what, int min_side, int* width, int* height) {
   constexpr int kMaxSide = 8192;
   const size_t x = text.find_first_of("xX");
-  long side[2] = {0, 0};
+  int side[2] = {0, 0};
   bool ok = x != std::string::npos;
   for (int i = 0; ok && i < 2; ++i) {
-    const std::string part = i == 0 ? text.substr(0, x) : text.substr(x + 1);
-    char* stop = nullptr;
-    ok = !part.empty() && part.find_first_not_of("0123456789") == std::string::npos && part.size() <= 6;
-    if (ok) side[i] = std::strtol(part.c_str(), &stop, 10);
+    const char* first = text.data() + (i == 0 ? 0 : x + 1);
+    const char* last = text.data() + (i == 0 ? x : text.size());
+    const auto r = std::from_chars(first, last, side[i]);  // digits only: no sign, no space
+    ok = first != last && *first != '-' && r.ec == std::errc() && r.ptr == last;
   }
   if (!ok) fail("{} '{}': expected WIDTHxHEIGHT, e.g. 640x480", what, text);
   if (side[0] < min_side || side[1] < min_side || side[0] > kMaxSide || side[1] > kMaxSide)
     fail("{} {}: width and height must be in {}..{}", what, text, min_side, kMaxSide);
-  *width = static_cast<int>(side[0]);
-  *height = static_cast<int>(side[1]);
+  *width = side[0];
+  *height = side[1];
 }
 
 }  // namespace nerfslam

@@ -1,9 +1,14 @@
 #include "image_header.h"
 
+#include <algorithm>
 #include <cctype>
 #include <cstdlib>
 #include <cstring>
 #include <string>
+
+#include <fmt/format.h>
+
+#include "nerfslam/core/error.h"
 
 namespace nerfslam::io_detail {
 namespace {
@@ -82,21 +87,43 @@ void pnmSize(const std::vector<uint8_t>& b, ImageHeader* h) {
   h->height = v[1];
 }
 
+// A PNG chunk type for a message: its four letters, or hex when they are not letters.
+std::string chunkName(const uint8_t* t) {
+  if (std::all_of(t, t + 4, [](uint8_t c) { return std::isalpha(c); })) return std::string(t, t + 4);
+  return fmt::format("0x{:02x}{:02x}{:02x}{:02x}", t[0], t[1], t[2], t[3]);
+}
+
 }  // namespace
+
+const char* imageFormatName(ImageFormat f) {
+  switch (f) {
+    case ImageFormat::kPng:
+      return "PNG";
+    case ImageFormat::kJpeg:
+      return "JPEG";
+    case ImageFormat::kBmp:
+      return "BMP";
+    case ImageFormat::kTiff:
+      return "TIFF";
+    case ImageFormat::kPnm:
+      return "PNM";
+  }
+  return "?";
+}
 
 std::optional<ImageHeader> sniffImageHeader(const std::vector<uint8_t>& b) {
   ImageHeader h;
   if (startsWith(b, "\x89PNG\r\n\x1a\n", 8)) {
-    h.format = "PNG";
+    h.format = ImageFormat::kPng;
     if (b.size() >= 24 && std::memcmp(&b[12], "IHDR", 4) == 0) {
       h.width = be32(&b[16]);
       h.height = be32(&b[20]);
     }
   } else if (startsWith(b, "\xff\xd8\xff", 3)) {
-    h.format = "JPEG";
+    h.format = ImageFormat::kJpeg;
     jpegSize(b, &h);
   } else if (startsWith(b, "BM", 2)) {
-    h.format = "BMP";
+    h.format = ImageFormat::kBmp;
     if (b.size() >= 26) {
       if (le32(&b[14]) == 12) {  // OS/2 BITMAPCOREHEADER: 16-bit sizes
         h.width = le16(&b[18]);
@@ -107,15 +134,36 @@ std::optional<ImageHeader> sniffImageHeader(const std::vector<uint8_t>& b) {
       }
     }
   } else if (startsWith(b, "II*\0", 4) || startsWith(b, "MM\0*", 4)) {
-    h.format = "TIFF";
+    h.format = ImageFormat::kTiff;
     if (b.size() >= 8) tiffSize(b, b[0] == 'I', &h);
   } else if (b.size() >= 3 && b[0] == 'P' && b[1] >= '1' && b[1] <= '6' && std::isspace(b[2])) {
-    h.format = "PNM";
+    h.format = ImageFormat::kPnm;
     pnmSize(b, &h);
   } else {
     return std::nullopt;
   }
   return h;
+}
+
+void checkImageComplete(const std::vector<uint8_t>& b, ImageFormat format, const std::string& path) {
+  if (format == ImageFormat::kPng) {
+    size_t i = 8;  // after the signature: length (4, big-endian), type (4), data (length), CRC (4)
+    while (true) {
+      if (b.size() - i < 12) fail("{}: truncated PNG image (no IEND chunk; {} bytes)", path, b.size());
+      const uint32_t n = be32(&b[i]);
+      if (n > b.size() - i - 12)
+        fail("{}: truncated PNG image: chunk '{}' at byte {} declares {} bytes but only {} follow", path,
+             chunkName(&b[i + 4]), i, n, b.size() - i - 12);
+      if (std::memcmp(&b[i + 4], "IEND", 4) == 0) return;
+      i += 12 + size_t{n};
+    }
+  }
+  if (format == ImageFormat::kJpeg) {
+    const size_t window = std::min<size_t>(b.size(), 65536);
+    for (size_t i = b.size() - 1; i > b.size() - window && i > 0; --i)
+      if (b[i - 1] == 0xff && b[i] == 0xd9) return;
+    fail("{}: truncated JPEG image (no end-of-image marker; {} bytes)", path, b.size());
+  }
 }
 
 }  // namespace nerfslam::io_detail

@@ -7,7 +7,6 @@
 #include <fstream>
 #include <iterator>
 
-#include <fmt/format.h>
 #include <opencv2/imgcodecs.hpp>
 
 #include "image_header.h"
@@ -22,48 +21,6 @@ namespace {
 // Larger than any camera we know (16384 per side, 64 megapixels: 3 bytes a pixel is 192 MB).
 constexpr int64_t kMaxImageSide = 16384;
 constexpr int64_t kMaxImagePixels = int64_t{64} << 20;
-
-bool startsWith(const std::vector<uchar>& b, const unsigned char* sig, size_t n) {
-  return b.size() >= n && std::memcmp(b.data(), sig, n) == 0;
-}
-
-// A PNG chunk type for a message: its four letters, or hex when they are not letters.
-std::string chunkName(const uchar* t) {
-  if (std::all_of(t, t + 4, [](uchar c) { return std::isalpha(c); })) return std::string(t, t + 4);
-  return fmt::format("0x{:02x}{:02x}{:02x}{:02x}", t[0], t[1], t[2], t[3]);
-}
-
-// OpenCV decodes a cut-off PNG or JPEG into a partly grey image with only a libpng/libjpeg warning,
-// so look for the format's end marker. PNG: walk the chunks to IEND, each declared length within
-// the bytes that follow (libpng would allocate and clear a declared 1 GB text chunk before finding
-// the file short). JPEG: EOI (FF D9, possibly followed by padding or an appended trailer; searched in
-// the last 64 KiB).
-void checkComplete(const std::vector<uchar>& b, const fs::path& path) {
-  static const unsigned char kPng[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  static const unsigned char kJpeg[3] = {0xff, 0xd8, 0xff};
-  if (startsWith(b, kPng, 8)) {
-    size_t i = 8;  // length (4, big-endian), type (4), data (length), CRC (4)
-    while (true) {
-      if (b.size() - i < 12) fail("{}: truncated PNG image (no IEND chunk; {} bytes)", path.string(), b.size());
-      const uint64_t n = (uint64_t{b[i]} << 24) | (uint64_t{b[i + 1]} << 16) | (uint64_t{b[i + 2]} << 8) | b[i + 3];
-      if (n > b.size() - i - 12)
-        fail("{}: truncated PNG image: chunk '{}' at byte {} declares {} bytes but only {} follow", path.string(),
-             chunkName(&b[i + 4]), i, n, b.size() - i - 12);
-      if (std::memcmp(&b[i + 4], "IEND", 4) == 0) return;
-      i += 12 + n;
-    }
-  } else if (startsWith(b, kJpeg, 3)) {
-    const size_t window = std::min<size_t>(b.size(), 65536);
-    bool found = false;
-    for (size_t i = b.size() - 1; i > b.size() - window && i > 0; --i) {
-      if (b[i - 1] == 0xff && b[i] == 0xd9) {
-        found = true;
-        break;
-      }
-    }
-    if (!found) fail("{}: truncated JPEG image (no end-of-image marker; {} bytes)", path.string(), b.size());
-  }
-}
 
 }  // namespace
 
@@ -80,8 +37,9 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
   if (header->width > kMaxImageSide || header->height > kMaxImageSide ||
       header->width * header->height > kMaxImagePixels)
     fail("{}: {} header declares {}x{} pixels, more than this reader accepts ({} per side, {} megapixels)",
-         path.string(), header->format, header->width, header->height, kMaxImageSide, kMaxImagePixels >> 20);
-  checkComplete(bytes, path);
+         path.string(), io_detail::imageFormatName(header->format), header->width, header->height, kMaxImageSide,
+         kMaxImagePixels >> 20);
+  io_detail::checkImageComplete(bytes, header->format, path.string());
   int flags = cv::IMREAD_GRAYSCALE;
   if (mode == ImageMode::kColor) flags = cv::IMREAD_COLOR;
   if (mode == ImageMode::kUnchanged) flags = cv::IMREAD_UNCHANGED;

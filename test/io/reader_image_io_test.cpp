@@ -112,7 +112,7 @@ TEST(ImageIo, HeaderSizesOfEveryFormat) {
     ASSERT_TRUE(cv::imencode(ext, ext == ".pgm" ? gray : img, bytes));
     const auto h = io_detail::sniffImageHeader(bytes);
     ASSERT_TRUE(h.has_value());
-    EXPECT_EQ(std::string(h->format), name);
+    EXPECT_EQ(std::string(io_detail::imageFormatName(h->format)), name);
     EXPECT_EQ(h->width, 37);
     EXPECT_EQ(h->height, 23);
   }
