@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/crc32.h"
 #include "nerfslam/core/error.h"
 
 namespace nerfslam::nerf {
@@ -15,19 +16,6 @@ namespace {
 
 constexpr char kMagic[8] = {'N', 'E', 'R', 'F', 'S', 'L', 'A', 'M'};
 constexpr uint32_t kByteOrderMark = 0x01020304u;
-
-const std::array<uint32_t, 256>& crcTable() {
-  static const std::array<uint32_t, 256> table = [] {
-    std::array<uint32_t, 256> t{};
-    for (uint32_t i = 0; i < 256; ++i) {
-      uint32_t c = i;
-      for (int k = 0; k < 8; ++k) c = (c & 1) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
-      t[i] = c;
-    }
-    return t;
-  }();
-  return table;
-}
 
 // Visitors over option structs (FieldConfig, AdamOptions) to and from JSON.
 struct ToJson {
@@ -111,14 +99,6 @@ std::vector<ArrayRef> collectArrays(NerfModel& m, bool optimizer) {
 }
 
 }  // namespace
-
-uint32_t crc32(const void* data, size_t n, uint32_t crc) {
-  const auto& t = crcTable();
-  const auto* p = static_cast<const uint8_t*>(data);
-  crc = ~crc;
-  for (size_t i = 0; i < n; ++i) crc = t[(crc ^ p[i]) & 0xFFu] ^ (crc >> 8);
-  return ~crc;
-}
 
 NerfModel NerfModel::create(FieldConfig config, const SceneTransform& scene, uint64_t seed) {
   scene.validate("scene");

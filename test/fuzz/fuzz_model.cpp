@@ -7,6 +7,7 @@
 #include <string>
 
 #include "fuzz_common.h"
+#include "nerfslam/core/crc32.h"
 #include "nerfslam/nerf/model_io.h"
 
 using namespace nerfslam;
@@ -20,7 +21,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const auto path = fuzz::scratchDir() / "model.nerf";
   std::string bytes(reinterpret_cast<const char*>(data), size);
   if (bytes.size() >= 4) {
-    const uint32_t crc = nerf::crc32(bytes.data(), bytes.size() - 4);
+    const uint32_t crc = crc32(bytes.data(), bytes.size() - 4);
     for (int i = 0; i < 4; ++i) bytes[bytes.size() - 4 + i] = static_cast<char>((crc >> (8 * i)) & 0xFF);
   }
   fuzz::writeBytes(path, bytes);

@@ -124,12 +124,5 @@ TEST(ModelIo, UnwritableDestinationIsAnError) {
   EXPECT_THROW(saveModel(a, "/proc/nonexistent_dir/m.nerf"), Error);
 }
 
-TEST(ModelIo, Crc32MatchesZlib) {
-  // The standard check value of CRC-32/ISO-HDLC.
-  EXPECT_EQ(crc32("123456789", 9), 0xCBF43926u);
-  // Incremental == one shot.
-  EXPECT_EQ(crc32("56789", 5, crc32("1234", 4)), 0xCBF43926u);
-}
-
 }  // namespace
 }  // namespace nerfslam::nerf

@@ -47,6 +47,4 @@ struct SaveOptions {
 void saveModel(NerfModel& model, const std::filesystem::path& path, const SaveOptions& options = {});
 NerfModel loadModel(const std::filesystem::path& path);
 
-uint32_t crc32(const void* data, size_t n, uint32_t crc = 0);
-
 }  // namespace nerfslam::nerf
