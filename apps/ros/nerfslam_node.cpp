@@ -128,9 +128,10 @@
 #include <tf2_ros/transform_broadcaster.h>
 #include <visualization_msgs/MarkerArray.h>
 
+#include "nerfslam/core/bounded_queue.h"
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/error.h"
-#include "nerfslam/mapping/bounded_queue.h"
+#include "nerfslam/core/timing.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam/system/slam_system.h"
@@ -212,17 +213,8 @@ std::string loadParams(ros::NodeHandle& pnh, Params& p) {
   return "";
 }
 
-// Same calibration (size, intrinsics, distortion), up to rounding.
-bool sameCamera(const Camera& a, const Camera& b) {
-  auto near = [](double x, double y) { return std::abs(x - y) <= 1e-9 * std::max(1.0, std::abs(x) + std::abs(y)); };
-  if (a.width != b.width || a.height != b.height || a.distortion_model != b.distortion_model ||
-      a.distortion.size() != b.distortion.size())
-    return false;
-  if (!near(a.fx, b.fx) || !near(a.fy, b.fy) || !near(a.cx, b.cx) || !near(a.cy, b.cy)) return false;
-  for (size_t i = 0; i < a.distortion.size(); ++i)
-    if (!near(a.distortion[i], b.distortion[i])) return false;
-  return true;
-}
+// Same calibration (size, intrinsics, distortion), up to rounding: the library's comparison.
+bool sameCamera(const Camera& a, const Camera& b) { return !calibrationDifference(a, b); }
 
 struct QueuedFrame {
   sensor_msgs::ImageConstPtr image;
@@ -823,7 +815,7 @@ class NerfslamNode {
     s.add("image publishers", static_cast<uint64_t>(publishers_));
     s.add("image stream restarts", static_cast<uint64_t>(stream_restarts_));
     s.add("image stream gaps", static_cast<uint64_t>(stream_gaps_));
-    s.addf("resident memory (MB)", "%.1f", nerfslam::rosnode::residentMemoryMb());
+    s.addf("resident memory (MB)", "%.1f", nerfslam::currentRssMb());
     master_watch_.diagnose(s);
     const uint64_t callbacks = callbacks_;
     s.addf("image callback ms (mean)", "%.3f", callbacks > 0 ? callback_ms_sum_.load() / callbacks : 0.0);

@@ -134,6 +134,8 @@ Eigen::Vector2d undistortNormalized(const Camera& c, const Eigen::Vector2d& pd) 
   return pd;
 }
 
+bool nearlyEqual(double a, double b) { return std::abs(a - b) <= 1e-9 * std::max({1.0, std::abs(a), std::abs(b)}); }
+
 // Remap tables for undistortImage, shared between copies of equal cameras.
 struct UndistortMaps {
   Camera camera;
@@ -183,6 +185,27 @@ std::shared_ptr<const UndistortMaps> undistortMaps(const Camera& cam) {
 }
 
 }  // namespace
+
+std::optional<CalibrationDifference> calibrationDifference(const Camera& a, const Camera& b) {
+  if (a.width != b.width) return CalibrationDifference{"width", std::to_string(a.width), std::to_string(b.width)};
+  if (a.height != b.height) return CalibrationDifference{"height", std::to_string(a.height), std::to_string(b.height)};
+  const std::pair<const char*, std::pair<double, double>> k[] = {
+      {"fx", {a.fx, b.fx}}, {"fy", {a.fy, b.fy}}, {"cx", {a.cx, b.cx}}, {"cy", {a.cy, b.cy}}};
+  for (const auto& [name, v] : k)
+    if (!nearlyEqual(v.first, v.second))
+      return CalibrationDifference{name, formatDouble(v.first), formatDouble(v.second)};
+  if (a.distortion_model != b.distortion_model)
+    return CalibrationDifference{"distortion_model", toString(a.distortion_model), toString(b.distortion_model)};
+  auto list = [](const std::vector<double>& d) {
+    std::string s = "[";
+    for (size_t i = 0; i < d.size(); ++i) s += (i ? ", " : "") + formatDouble(d[i]);
+    return s + "]";
+  };
+  bool same = a.distortion.size() == b.distortion.size();
+  for (size_t i = 0; same && i < a.distortion.size(); ++i) same = nearlyEqual(a.distortion[i], b.distortion[i]);
+  if (!same) return CalibrationDifference{"distortion", list(a.distortion), list(b.distortion)};
+  return std::nullopt;
+}
 
 std::string toString(DistortionModel m) {
   switch (m) {

@@ -20,6 +20,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/crc32.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/options_yaml.h"
 #include "nerfslam/nerf/model_io.h"
@@ -39,9 +40,6 @@ constexpr char kKeyframesMagic[8] = {'N', 'S', 'M', 'A', 'P', 'K', 'F', '\0'};
 constexpr char kPointsMagic[8] = {'N', 'S', 'M', 'A', 'P', 'P', 'T', '\0'};
 constexpr uint32_t kBinaryVersion = 1;
 constexpr int kDescriptorBytes = 32;
-
-uint32_t crc32(const void* data, size_t n, uint32_t crc = 0) { return nerf::crc32(data, n, crc); }
-uint32_t crc32(const std::string& s) { return crc32(s.data(), s.size()); }
 
 std::string hex32(uint32_t x) { return fmt::format("{:08x}", x); }
 
@@ -651,37 +649,15 @@ void removeUnreferenced(const fs::path& dir, const std::set<std::string>& keep) 
   }
 }
 
-bool nearlyEqual(double a, double b) { return std::abs(a - b) <= 1e-9 * std::max({1.0, std::abs(a), std::abs(b)}); }
-
 }  // namespace
 
 void checkSameCamera(const Camera& map_camera, const Camera& camera, const std::string& source) {
-  const std::string tail = ": the map was made with another camera (a map is tied to its camera)";
-  auto differ = [&](const char* field, const std::string& a, const std::string& b) {
+  if (const auto d = calibrationDifference(map_camera, camera))
     throw fieldError(
-        source, field,
-        fmt::format("the map's camera has {} = {}, the camera given has {} = {}{}", field, a, field, b, tail));
-  };
-  if (map_camera.width != camera.width) differ("width", std::to_string(map_camera.width), std::to_string(camera.width));
-  if (map_camera.height != camera.height)
-    differ("height", std::to_string(map_camera.height), std::to_string(camera.height));
-  const std::pair<const char*, std::pair<double, double>> k[] = {{"fx", {map_camera.fx, camera.fx}},
-                                                                 {"fy", {map_camera.fy, camera.fy}},
-                                                                 {"cx", {map_camera.cx, camera.cx}},
-                                                                 {"cy", {map_camera.cy, camera.cy}}};
-  for (const auto& [name, v] : k)
-    if (!nearlyEqual(v.first, v.second)) differ(name, formatDouble(v.first), formatDouble(v.second));
-  if (map_camera.distortion_model != camera.distortion_model)
-    differ("distortion_model", toString(map_camera.distortion_model), toString(camera.distortion_model));
-  auto list = [](const std::vector<double>& d) {
-    std::string s = "[";
-    for (size_t i = 0; i < d.size(); ++i) s += (i ? ", " : "") + formatDouble(d[i]);
-    return s + "]";
-  };
-  bool same = map_camera.distortion.size() == camera.distortion.size();
-  for (size_t i = 0; same && i < camera.distortion.size(); ++i)
-    same = nearlyEqual(map_camera.distortion[i], camera.distortion[i]);
-  if (!same) differ("distortion", list(map_camera.distortion), list(camera.distortion));
+        source, d->field,
+        fmt::format("the map's camera has {0} = {1}, the camera given has {0} = {2}: the map was made with "
+                    "another camera (a map is tied to its camera)",
+                    d->field, d->a, d->b));
 }
 
 MapSaveResult saveMapFolder(const fs::path& dir, const Map& map, const Camera& camera, const SystemOptions& options,

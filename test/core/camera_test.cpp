@@ -357,3 +357,40 @@ TEST(Camera, ValidateRejectsBadCameras) {
 
 }  // namespace
 }  // namespace nerfslam
+
+namespace nerfslam {
+namespace {
+
+TEST(CalibrationDifference, NamesTheFirstFieldThatDiffersWithBothValues) {
+  Camera a = Camera::pinhole(640, 480, 525, 525, 319.5, 239.5);
+  Camera b = a;
+  EXPECT_FALSE(calibrationDifference(a, b));
+  b.fx = 525 * (1 + 1e-12);  // rounding in a file is the same calibration
+  EXPECT_FALSE(calibrationDifference(a, b));
+  b.fx = 520;
+  auto d = calibrationDifference(a, b);
+  ASSERT_TRUE(d);
+  EXPECT_EQ(d->field, "fx");
+  EXPECT_EQ(d->a, "525");
+  EXPECT_EQ(d->b, "520");
+  b = a;
+  b.height = 470;
+  d = calibrationDifference(a, b);
+  ASSERT_TRUE(d);
+  EXPECT_EQ(d->field, "height");
+  b = a;
+  b.distortion_model = DistortionModel::kRadTan;
+  b.distortion = {0.1, 0, 0, 0};
+  d = calibrationDifference(a, b);
+  ASSERT_TRUE(d);
+  EXPECT_EQ(d->field, "distortion_model");
+  a.distortion_model = DistortionModel::kRadTan;
+  a.distortion = {0.1, 0, 0, 0.001};
+  d = calibrationDifference(a, b);
+  ASSERT_TRUE(d);
+  EXPECT_EQ(d->field, "distortion");
+  EXPECT_EQ(d->a, "[0.1, 0, 0, 0.001]");
+}
+
+}  // namespace
+}  // namespace nerfslam

@@ -23,6 +23,7 @@
 // describes the raw (unrectified) image, i.e. camera_matrix + distortion_coefficients;
 // rational_polynomial (8 coefficients) is refused.
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -76,6 +77,15 @@ class Camera {
 
   std::string describe() const;  // one line for logs
 };
+
+// The first calibration field in which two cameras differ (width, height, fx, fy, cx, cy,
+// distortion_model, distortion; numbers compared up to a relative 1e-9, i.e. up to rounding in
+// files), with both values as text; nullopt when they are the same calibration. The one comparison
+// of calibrations: a saved map against the camera given, a ROS camera_info against the map's.
+struct CalibrationDifference {
+  std::string field, a, b;
+};
+std::optional<CalibrationDifference> calibrationDifference(const Camera& a, const Camera& b);
 
 // Loads our camera YAML or a ROS camera_info calibration YAML (as written by camera_calibration),
 // detected from the keys. Validates; errors name the file and field.
