@@ -9,35 +9,6 @@
 
 namespace nerfslam {
 
-std::shared_ptr<KeyframeBus::Queue> KeyframeBus::subscribe(std::size_t capacity, OverflowPolicy policy) {
-  auto q = std::make_shared<Queue>(capacity, policy);
-  std::lock_guard<std::mutex> lock(mutex_);
-  queues_.push_back(q);
-  return q;
-}
-
-void KeyframeBus::unsubscribe(const std::shared_ptr<Queue>& queue) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  queues_.erase(std::remove(queues_.begin(), queues_.end(), queue), queues_.end());
-}
-
-int KeyframeBus::publish(const KeyframeEvent& event) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  int n = 0;
-  for (auto& q : queues_) n += q->tryPush(event);
-  return n;
-}
-
-void KeyframeBus::close() {
-  std::lock_guard<std::mutex> lock(mutex_);
-  for (auto& q : queues_) q->close();
-}
-
-std::size_t KeyframeBus::numSubscribers() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return queues_.size();
-}
-
 MappingThread::MappingThread(Map& map, MappingOptions options, std::size_t queue_capacity)
     : map_(map), mapper_(map, std::move(options)), queue_(queue_capacity, OverflowPolicy::kDropNewest) {}
 

@@ -1,4 +1,4 @@
-#include "nerfslam/mapping/bounded_queue.h"
+#include "nerfslam/core/bounded_queue.h"
 
 #include <gtest/gtest.h>
 

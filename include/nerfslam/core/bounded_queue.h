@@ -1,6 +1,6 @@
 #pragma once
 // Bounded multi-producer multi-consumer queue (basalt style) used between the tracking, mapping and
-// (later) NeRF threads. Producers on a real-time path use tryPush(), which never blocks: when the
+// NeRF threads. Producers on a real-time path use tryPush(), which never blocks: when the
 // queue is full the item is dropped (kDropNewest) or the oldest queued item is evicted (kDropOldest),
 // and the drop is counted. Consumers block in pop() until an item arrives or the queue is closed.
 #include <chrono>

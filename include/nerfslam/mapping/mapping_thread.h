@@ -6,9 +6,10 @@
 // existing map and asks again later). The thread inserts each keyframe into the Map, publishes it on
 // the KeyframeBus, then runs the LocalMapper on it.
 //
-// KeyframeBus: any number of consumers (e.g. the NeRF mapping thread) subscribe with their own
-// bounded queue and overflow policy; publishing never blocks the mapping thread. A consumer reads
-// geometry that BA refines later from the Map (Map::keyframe(id)) when it needs the latest pose.
+// KeyframeBus (a core/bus.h Bus): any number of consumers (e.g. the NeRF mapping thread) subscribe
+// with their own bounded queue and overflow policy; publishing never blocks the mapping thread. A
+// consumer reads geometry that BA refines later from the Map (Map::keyframe(id)) when it needs the
+// latest pose.
 #include <atomic>
 #include <condition_variable>
 #include <functional>
@@ -19,7 +20,8 @@
 #include <utility>
 #include <vector>
 
-#include "nerfslam/mapping/bounded_queue.h"
+#include "nerfslam/core/bounded_queue.h"
+#include "nerfslam/core/bus.h"
 #include "nerfslam/mapping/local_mapper.h"
 #include "nerfslam/mapping/map.h"
 
@@ -37,22 +39,8 @@ struct KeyframeEvent {
   std::shared_ptr<const Frame> frame;
 };
 
-class KeyframeBus {
- public:
-  using Queue = BoundedQueue<KeyframeEvent>;
-  // A new consumer queue; it receives every keyframe published from now on.
-  std::shared_ptr<Queue> subscribe(std::size_t capacity, OverflowPolicy policy = OverflowPolicy::kDropOldest);
-  void unsubscribe(const std::shared_ptr<Queue>& queue);
-  // Never blocks; returns the number of subscribers that accepted the event.
-  int publish(const KeyframeEvent& event);
-  // Closes every subscriber queue (consumers drain and finish).
-  void close();
-  std::size_t numSubscribers() const;
-
- private:
-  mutable std::mutex mutex_;
-  std::vector<std::shared_ptr<Queue>> queues_;
-};
+// Every keyframe the mapping thread inserts, to any number of consumers (core/bus.h).
+using KeyframeBus = Bus<KeyframeEvent>;
 
 class MappingThread {
  public:

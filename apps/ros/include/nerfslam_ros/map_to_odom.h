@@ -36,8 +36,8 @@
 #include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
 
+#include "nerfslam/core/bounded_queue.h"
 #include "nerfslam/core/pose.h"
-#include "nerfslam/mapping/bounded_queue.h"
 
 namespace nerfslam::rosnode {
 
