@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <fstream>
 #include <set>
 #include <sstream>
 
@@ -232,14 +231,6 @@ void MasterWatch::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const
   s.add("master re-registrations", static_cast<uint64_t>(reregistrations_));
   std::lock_guard<std::mutex> lock(last_mutex_);
   if (!last_.empty()) s.add("last re-registration", last_);
-}
-
-double residentMemoryMb() {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind("VmRSS:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // "VmRSS:  123456 kB"
-  return 0.0;
 }
 
 }  // namespace nerfslam::rosnode

@@ -30,6 +30,7 @@
 #include <geometry_msgs/PoseStamped.h>
 #include <ros/ros.h>
 
+#include "nerfslam/core/timing.h"
 #include "nerfslam/mapping/mapping_thread.h"
 #include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam_ros/conversions.h"
@@ -164,7 +165,7 @@ class NerfMappingNode {
     s.add("session", static_cast<uint64_t>(replica_.session()));
     s.add("keyframes", replica_.map().numKeyframes());
     s.add("map points", replica_.map().numPoints());
-    s.addf("resident memory (MB)", "%.1f", nerfslam::rosnode::residentMemoryMb());
+    s.addf("resident memory (MB)", "%.1f", nerfslam::currentRssMb());
     master_watch_.diagnose(s);
     nerf_pub_->diagnose(s);
   }

@@ -1,9 +1,5 @@
 #include "nerfslam_ros/nerf_publisher.h"
 
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -18,6 +14,7 @@
 #include <sensor_msgs/PointCloud2.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
 
+#include "nerfslam/core/thread.h"
 #include "nerfslam/nerf/export.h"
 #include "nerfslam/nerf/field.h"
 #include "nerfslam/nerf/model_io.h"
@@ -36,14 +33,6 @@ std::filesystem::path resolveMapDir(const std::string& dir) {
 
 double wallSeconds() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
-
-void lowerThreadPriority(int increment, const char* what) {
-  if (increment <= 0) return;
-  const pid_t tid = static_cast<pid_t>(syscall(SYS_gettid));
-  if (setpriority(PRIO_PROCESS, static_cast<id_t>(tid),
-                  getpriority(PRIO_PROCESS, static_cast<id_t>(tid)) + increment) != 0)
-    ROS_WARN("could not lower the %s thread's priority", what);
 }
 
 std::string loadNerfParams(ros::NodeHandle& pnh, NerfParams& p, bool read_nerf_switch) {
@@ -198,7 +187,7 @@ void NerfPublisher::stop() {
 }
 
 void NerfPublisher::run() {
-  lowerThreadPriority(p_.nerf_render_nice, "NeRF publisher");
+  if (!lowerThreadPriority(p_.nerf_render_nice)) ROS_WARN("could not lower the NeRF publisher thread's priority");
   double next_view = wallSeconds() + p_.nerf_publish_period;
   double next_cloud = wallSeconds() + p_.nerf_cloud_period;
   while (!stopping_ && ros::ok()) {

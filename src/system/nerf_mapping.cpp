@@ -1,9 +1,5 @@
 #include "nerfslam/system/nerf_mapping.h"
 
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -13,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/thread.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/nerf/model_io.h"
@@ -95,12 +92,8 @@ void NerfMapping::stop() {
 }
 
 void NerfMapping::run() {
-  if (opt_.nice_increment > 0) {
-    // Linux: per-thread niceness; threads the trainer spawns inherit it.
-    const pid_t tid = pid_t(syscall(SYS_gettid));
-    if (setpriority(PRIO_PROCESS, id_t(tid), getpriority(PRIO_PROCESS, id_t(tid)) + opt_.nice_increment) != 0)
-      spdlog::debug("NeRF thread: could not lower its priority");
-  }
+  // Threads the trainer spawns inherit the niceness.
+  if (!lowerThreadPriority(opt_.nice_increment)) spdlog::debug("NeRF thread: could not lower its priority");
   while (!stop_) {
     try {
       std::unique_lock<std::mutex> lock(model_mutex_);

@@ -14,13 +14,14 @@
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/bounded_queue.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/options_yaml.h"
+#include "nerfslam/core/thread.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/trajectory_metrics.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/io/trajectory.h"
-#include "nerfslam/mapping/bounded_queue.h"
 #include "nerfslam/render/synth.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam/system/run_outputs.h"
@@ -260,8 +261,7 @@ RunResult runSlam(const RunOptions& ro) {
   if (NerfMapping* n = slam.nerf(); n && n->hasModel() && sys.nerf.final_train_seconds > 0) {
     std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n",
                  sys.nerf.final_train_seconds);
-    const int threads =
-        sys.nerf.final_threads > 0 ? sys.nerf.final_threads : std::max(1, int(std::thread::hardware_concurrency()));
+    const int threads = resolveThreads(sys.nerf.final_threads);
     n->trainFor(sys.nerf.final_train_seconds, 0, threads);
   }
 

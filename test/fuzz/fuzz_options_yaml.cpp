@@ -6,7 +6,6 @@
 #include <vector>
 
 #include "fuzz_common.h"
-#include "nerfslam/core/core_options.h"
 #include "nerfslam/core/options_yaml.h"
 #include "nerfslam/eval/trajectory_metrics.h"
 
@@ -36,8 +35,20 @@ struct LeafOptions {
   }
 };
 
+struct CoreLike {
+  int threads = 0;
+  std::string log_level = "info";
+  int64_t seed = 0;
+  template <class V>
+  void visit(V& v) {
+    v("threads", threads, "an int in a range", check::range(0, 1024));
+    v("log_level", log_level, "a string of a set", check::oneOf({"trace", "debug", "info", "warn", "error", "off"}));
+    v("seed", seed, "a non-negative int64", check::nonNegative<int64_t>());
+  }
+};
+
 struct FuzzOptions {
-  CoreOptions core;
+  CoreLike core;
   eval::TrajectoryEvalOptions eval;
   LeafOptions leaf;
   struct Outer {
@@ -51,7 +62,7 @@ struct FuzzOptions {
   } outer;
   template <class V>
   void visit(V& v) {
-    v("core", core, "CoreOptions");
+    v("core", core, "three checked scalars");
     v("eval", eval, "TrajectoryEvalOptions");
     v("leaf", leaf, "every leaf type");
     v("outer", outer, "two levels of nesting");

@@ -61,7 +61,4 @@ class MasterWatch {
   std::string last_;  // summary of the last re-registration
 };
 
-// Resident set size of this process in MB (VmRSS from /proc/self/status; 0 when unavailable).
-double residentMemoryMb();
-
 }  // namespace nerfslam::rosnode

@@ -51,8 +51,6 @@ std::string loadNerfParams(ros::NodeHandle& pnh, NerfParams& p, bool read_nerf_s
 // A relative ~map_dir is taken relative to the working directory (ROS_HOME under roslaunch).
 std::filesystem::path resolveMapDir(const std::string& dir);
 double wallSeconds();
-// Lowers the calling thread's priority (Linux: per-thread niceness; threads it starts inherit it).
-void lowerThreadPriority(int increment, const char* what);
 
 // The nodes' main(): reads the parameters with `load` (an error is a ROS_FATAL and exit code 1), then
 // runs a `Node(nh, pnh, params)` under ros::spin(); exceptions are fatal too. Call after ros::init.
