@@ -27,6 +27,8 @@ bool dataRequired() {
 
 fs::path cliPath() { return fs::path(NERFSLAM_CLI_PATH); }
 
+fs::path sourceDir() { return fs::path(NERFSLAM_SOURCE_DIR); }
+
 TempDir::TempDir() {
   static std::atomic<int> counter{0};
   path_ = fs::temp_directory_path() / ("nerfslam_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));

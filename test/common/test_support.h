@@ -17,6 +17,8 @@ std::filesystem::path dataDir();
 bool dataRequired();
 // The path of the built `nerfslam` binary.
 std::filesystem::path cliPath();
+// The repository this build was configured from (config/, docs/, test data generators).
+std::filesystem::path sourceDir();
 
 // A fresh directory under the system temp dir, removed (with contents) on destruction.
 class TempDir {

@@ -255,10 +255,9 @@ TEST(CameraYaml, ErrorsNameFileAndField) {
 }
 
 // The source tree, derived from this file's path (test/core/camera_yaml_test.cpp).
-fs::path sourceDir() { return fs::path(__FILE__).parent_path().parent_path().parent_path(); }
 
 TEST(CameraYaml, EveryPresetLoads) {
-  const fs::path dir = sourceDir() / "config" / "camera";
+  const fs::path dir = test::sourceDir() / "config" / "camera";
   ASSERT_TRUE(fs::is_directory(dir)) << dir;
   int n = 0;
   for (const auto& e : fs::directory_iterator(dir)) {
@@ -271,7 +270,7 @@ TEST(CameraYaml, EveryPresetLoads) {
 }
 
 TEST(CameraYaml, PresetValues) {
-  const fs::path dir = sourceDir() / "config" / "camera";
+  const fs::path dir = test::sourceDir() / "config" / "camera";
   const Camera fr1 = loadCameraYaml(dir / "tum_fr1.yaml");
   EXPECT_EQ(fr1.fx, 517.306408);
   EXPECT_EQ(fr1.distortion.size(), 5u);
@@ -302,7 +301,7 @@ TEST(CameraYaml, EurocPresetMatchesDatasetSensorYaml) {
   std::stringstream ss;
   ss << in.rdbuf();
   const std::string text = ss.str();
-  const Camera c = loadCameraYaml(sourceDir() / "config" / "camera" / "euroc_cam0.yaml");
+  const Camera c = loadCameraYaml(test::sourceDir() / "config" / "camera" / "euroc_cam0.yaml");
   for (const char* s : {"458.654", "457.296", "367.215", "248.375", "-0.28340811", "0.07395907", "0.00019359",
                         "1.76187114e-05", "752", "480"})
     EXPECT_NE(text.find(s), std::string::npos) << s;

@@ -12,10 +12,8 @@ namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path sourceDir() { return fs::path(__FILE__).parent_path().parent_path().parent_path(); }
-
 TEST(OptionsReference, DocsEmbedTheGeneratedReference) {
-  std::ifstream is(sourceDir() / "docs" / "options.md");
+  std::ifstream is(test::sourceDir() / "docs" / "options.md");
   ASSERT_TRUE(is) << "docs/options.md missing";
   std::stringstream ss;
   ss << is.rdbuf();
@@ -31,6 +29,37 @@ TEST(OptionsReference, DocsEmbedTheGeneratedReference) {
   while (!expect.empty() && expect.front() == '\n') expect.erase(0, 1);
   EXPECT_EQ(tail, expect)
       << "docs/options.md is out of date: run scripts/update_options_doc.sh (`nerfslam options --markdown`)";
+}
+
+// The example at the top of docs/options.md is a `run --config` file: it loads into SystemOptions,
+// validates, and the error messages the page quotes are the ones the loader gives.
+TEST(OptionsReference, DocsExampleIsARunConfiguration) {
+  std::ifstream is(test::sourceDir() / "docs" / "options.md");
+  ASSERT_TRUE(is);
+  std::stringstream ss;
+  ss << is.rdbuf();
+  const std::string doc = ss.str();
+  const size_t a = doc.find("```yaml\n");
+  ASSERT_NE(a, std::string::npos);
+  const size_t b = doc.find("```", a + 8);
+  ASSERT_NE(b, std::string::npos);
+  SystemOptions o;
+  ASSERT_NO_THROW(loadOptions(YAML::Load(doc.substr(a + 8, b - a - 8)), o, "run.yaml"));
+  EXPECT_NO_THROW(validateOptions(o, "run.yaml"));
+  EXPECT_EQ(o.tracking.features.max_features, 1500);
+  EXPECT_EQ(o.nerf.holdout_every, 5);
+  auto quoted = [&](const std::string& yaml, bool validate) {
+    SystemOptions x;
+    const std::string e = test::errorOf([&] {
+      loadOptions(YAML::Load(yaml), x, "run.yaml");
+      if (validate) validateOptions(x, "run.yaml");
+    });
+    EXPECT_FALSE(e.empty()) << yaml;
+    EXPECT_NE(doc.find("`" + e + "`"), std::string::npos) << "docs/options.md does not quote: " << e;
+  };
+  quoted("tracking: {features: {max_featres: 1}}", false);
+  quoted("tracking: {features: {max_features: many}}", false);
+  quoted("tracking: {features: {max_features: 10}}", true);
 }
 
 // Turns `a.b.c = value  # doc` lines (printOptions) into a nested YAML document.
