@@ -315,41 +315,6 @@ FileEntry writeEntry(const fs::path& dir, const std::string& name, const std::st
   return f;
 }
 
-// ---- options as YAML ---------------------------------------------------------------------------
-
-struct YamlWriter {
-  std::string* out;
-  int indent = 0;
-
-  static std::string comment(const char* doc) {
-    std::string s(doc);
-    std::replace(s.begin(), s.end(), '\n', ' ');
-    return s;
-  }
-  template <typename T, typename C>
-  void operator()(const char* name, const T& field, const char* doc, const C&) {
-    (*this)(name, field, doc);
-  }
-  template <typename T>
-  void operator()(const char* name, const T& field, const char* doc) {
-    const std::string pad(static_cast<size_t>(indent), ' ');
-    if constexpr (options_detail::kIsLeaf<T>) {
-      *out += pad + name + ": " + options_detail::formatValue(field) + "  # " + comment(doc) + "\n";
-    } else {
-      *out += pad + name + ":  # " + comment(doc) + "\n";
-      YamlWriter sub{out, indent + 2};
-      const_cast<T&>(field).visit(sub);
-    }
-  }
-};
-
-std::string optionsYaml(const SystemOptions& options) {
-  std::string out = "# nerfslam SystemOptions (loads with `nerfslam run --config FILE`)\n";
-  YamlWriter w{&out, 0};
-  const_cast<SystemOptions&>(options).visit(w);
-  return out;
-}
-
 // ---- images -----------------------------------------------------------------------------------
 
 // The image a keyframe is rebuilt from: the BGR input when kept, else pyramid level 0.
@@ -754,7 +719,8 @@ MapSaveResult saveMapFolder(const fs::path& dir, const Map& map, const Camera& c
     std::tie(e.size, e.crc) = fileSizeCrc(dir / name);
     files.push_back(e);
   }
-  files.push_back(writeEntry(dir, "config." + g + ".yaml", "config", optionsYaml(options)));
+  files.push_back(writeEntry(dir, "config." + g + ".yaml", "config",
+                             optionsYaml(options, "nerfslam SystemOptions (loads with `nerfslam run --config FILE`)")));
   if (write_nerf_model) {
     const std::string name = "nerf." + g + ".nerf";
     write_nerf_model(dir / name);

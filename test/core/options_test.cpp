@@ -217,6 +217,34 @@ TEST(Options, PrintedValuesLoadBack) {
   EXPECT_EQ(printOptions(back), printOptions(o));
 }
 
+TEST(Options, YamlOfOptionsLoadsBackExactly) {
+  SampleSystem o;
+  o.tracker.min_parallax_deg = 0.1 + 0.2;  // needs all 17 digits
+  o.fps = 29.97f;
+  o.name = "a \"b\" \\c";
+  o.levels = {};
+  o.core.seed = -3;
+  const std::string yaml = optionsYaml(o, "sample options");
+  EXPECT_EQ(yaml.rfind("# sample options\nmax_frames: 1000  # Stop after this many frames\n", 0), 0u) << yaml;
+  EXPECT_NE(yaml.find("\ntracker:  # Tracking front end\n  fast_threshold: 20  # FAST corner threshold on 8-bit "
+                      "intensities\n"),
+            std::string::npos)
+      << yaml;
+  EXPECT_NE(yaml.find("\n  scales: [1, 0.5]  # Pyramid scales\ncore:  # Threads, logging, seed\n  threads: 0"),
+            std::string::npos)
+      << yaml;
+  EXPECT_NE(yaml.find("\nlevels: []  # Levels to use\n"), std::string::npos) << yaml;
+  EXPECT_EQ(optionsYaml(o).rfind("max_frames: 1000", 0), 0u) << "no title, no title line";
+  SampleSystem back;
+  back.tracker.fast_threshold = 99;
+  back.levels = {4};
+  loadOptions(YAML::Load(yaml), back, "written");
+  EXPECT_EQ(back.tracker.min_parallax_deg, o.tracker.min_parallax_deg);
+  EXPECT_EQ(back.name, o.name);
+  EXPECT_EQ(printOptions(back), printOptions(o));
+  EXPECT_EQ(optionsYaml(back, "sample options"), yaml);
+}
+
 TEST(Options, DocumentsEveryOption) {
   const std::string md = documentOptions<SampleSystem>();
   EXPECT_EQ(md.rfind("| Option | Type | Default | Constraint | Description |\n|---|---|---|---|---|\n", 0), 0u) << md;

@@ -7,12 +7,14 @@
 //   loadOptionsFile("config/system/tum.yaml", o);      // overrides from YAML (sections = nested structs)
 //   validateOptions(o, "config/system/tum.yaml");      // all constraint violations in one Error
 //   spdlog::info("options:\n{}", printOptions(o));     // "fast_threshold = 20  # FAST corner ..."
+//   writeStringAtomic("run.yaml", optionsYaml(o));      // "fast_threshold: 20  # FAST corner ..."
 //   std::string md = documentOptions<TrackerOptions>(); // Markdown table for docs/options.md
 //
 // Loading rules: keys missing from the YAML keep their defaults; an unknown key is an error naming
 // the source and the key with a "did you mean" hint; a value of the wrong type is an error naming the
 // key and the expected type; a nested options struct is a YAML map (an empty or null section keeps
 // the defaults). All loading errors of one document are reported together, one per line.
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
@@ -221,6 +223,34 @@ struct Printer {
   }
 };
 
+// YAML that loadOptions reads back: "name: value  # doc" per leaf, "name:  # doc" and an indent of
+// two more spaces per section.
+struct YamlWriter {
+  std::string* out;
+  int indent = 0;
+
+  static std::string comment(const char* doc) {
+    std::string s(doc);
+    std::replace(s.begin(), s.end(), '\n', ' ');
+    return s;
+  }
+  template <typename T, typename C>
+  void operator()(const char* name, const T& field, const char* doc, const C&) {
+    (*this)(name, field, doc);
+  }
+  template <typename T>
+  void operator()(const char* name, const T& field, const char* doc) {
+    const std::string pad(static_cast<size_t>(indent), ' ');
+    if constexpr (kIsLeaf<T>) {
+      *out += pad + name + ": " + formatValue(field) + "  # " + comment(doc) + "\n";
+    } else {
+      *out += pad + name + ":  # " + comment(doc) + "\n";
+      YamlWriter sub{out, indent + 2};
+      const_cast<T&>(field).visit(sub);
+    }
+  }
+};
+
 // The reason a check gives for the most extreme values of the type: this is how a constraint
 // describes itself ("must be in [1, 255]" -> "in [1, 255]"). Empty when every probe passes.
 template <typename T, typename C>
@@ -318,6 +348,18 @@ std::string printOptions(const T& options) {
   std::string out;
   options_detail::Printer p{"", &out};
   const_cast<T&>(options).visit(p);
+  return out;
+}
+
+// The options as a YAML document that loadOptions reads back to the same values (the one way to
+// write options as YAML): a first line "# " + title when `title` is not empty, then one
+// "name: value  # doc" line per leaf option, a "name:  # doc" line per section and its options
+// indented by two more spaces. Newlines in docs become spaces.
+template <typename T>
+std::string optionsYaml(const T& options, const std::string& title = "") {
+  std::string out = title.empty() ? std::string() : "# " + title + "\n";
+  options_detail::YamlWriter w{&out, 0};
+  const_cast<T&>(options).visit(w);
   return out;
 }
 
