@@ -1,6 +1,6 @@
 // kill -9 at random points while the outputs of a run are written (issue: hardening). A child process
 // (the helper test below) rewrites, in a loop, every kind of output file the system writes besides
-// the map folder (map_store_test has its own loop): a TUM trajectory, a NeRF model, a PLY and a PCD
+// the map folder (map_folder_test has its own loop): a TUM trajectory, a NeRF model, a PLY and a PCD
 // point cloud and a PLY mesh, alternating between two different contents A and B. The parent kills
 // it with SIGKILL at random times, >= 50 times; after every kill each file must be absent (never
 // written yet) or load and equal A or B exactly: a killed write never leaves a truncated file in
@@ -139,9 +139,9 @@ TEST(OutputKill, EveryWriterSurvivesSigkill) {
   int kills = 0, temp_left = 0;
   for (int it = 0; it < 50; ++it) {
     const double after = when(rng);
-    const auto r = test::runCommand(fmt::format("{}='{}' timeout -s KILL {:.3f} '{}' --gtest_filter={}", kEnv,
-                                                tmp.path().string(), after, self.string(),
-                                                "OutputKillHelper.WriteLoopChild"));
+    const auto r =
+        test::runCommand(fmt::format("{}='{}' timeout -s KILL {:.3f} '{}' --gtest_filter={}", kEnv, tmp.path().string(),
+                                     after, self.string(), "OutputKillHelper.WriteLoopChild"));
     ASSERT_EQ(r.exit_code, 128 + 9) << "the helper was expected to be killed after " << after << " s: " << r.output;
     ++kills;
     for (const auto& [name, which] : files) {

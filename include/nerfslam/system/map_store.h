@@ -33,6 +33,10 @@
 // extractFrame (pyramid, grid; with the features options stored in the map) and then given the
 // stored keypoints, descriptors and undistorted positions, so the associations stay valid even if
 // feature extraction changed; LoadedMap says how many keyframes re-extracted identically.
+//
+// The pieces: map_folder.h (manifest, generations, verified reads, atomic replace), and, private to
+// src/system, map_codec.h (the keyframe and point binaries) and map_rebuild.h (keyframe images and
+// the Frames rebuilt from them); saveMapFolder and loadMapFolder compose them.
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -45,13 +49,10 @@
 
 #include "nerfslam/core/camera.h"
 #include "nerfslam/mapping/map.h"
+#include "nerfslam/system/map_folder.h"
 #include "nerfslam/system/slam_system.h"
 
 namespace nerfslam {
-
-// 2: keypoint and map-point descriptors are our steered BRIEF (tracking/brief.h); version 1 maps
-// hold cv::ORB descriptors, which do not match them.
-constexpr int kMapFormatVersion = 2;
 
 // Writes the NeRF model to the given path (e.g. nerf::saveModel); an exception aborts the save.
 using NerfModelWriter = std::function<void(const std::filesystem::path&)>;
