@@ -6,9 +6,9 @@
 
 #include <algorithm>
 #include <array>
-#include <deque>
 #include <chrono>
 #include <cmath>
+#include <deque>
 #include <limits>
 
 #include "nerfslam/core/error.h"
@@ -128,9 +128,9 @@ double reprojectionError(const BaProblem& problem, const BaProblem::Observation&
   return obsError(x, problem.points.at(obs.point).position.data(), problem, obs);
 }
 
-BaResult bundleAdjust(BaProblem& pb, const BundleAdjustmentOptions& opt) {
-  const auto t0 = std::chrono::steady_clock::now();
-  BaResult res;
+namespace {
+
+void validateObservations(const BaProblem& pb) {
   const int nc = static_cast<int>(pb.cameras.size());
   const int np = static_cast<int>(pb.points.size());
   for (const auto& o : pb.observations) {
@@ -138,161 +138,225 @@ BaResult bundleAdjust(BaProblem& pb, const BundleAdjustmentOptions& opt) {
       fail("bundle adjustment: observation refers to camera {} / point {} of {} / {}", o.camera, o.point, nc, np);
     if (!(o.sigma > 0) || !o.uv.allFinite()) fail("bundle adjustment: invalid observation (sigma {})", o.sigma);
   }
-  res.inlier.assign(pb.observations.size(), true);
+}
 
-  std::vector<std::array<double, 7>> poses(nc);
-  for (int i = 0; i < nc; ++i) poseToParams(pb.cameras[i].T_world_cam, poses[i].data());
-  std::vector<Eigen::Vector3d> pts(np);
-  for (int i = 0; i < np; ++i) pts[i] = pb.points[i].position;
-
-  auto rmse = [&](bool inliers_only) {
-    double s = 0;
-    int n = 0;
-    for (std::size_t k = 0; k < pb.observations.size(); ++k) {
-      if (inliers_only && !res.inlier[k]) continue;
-      const auto& o = pb.observations[k];
-      const double e = obsError(poses[o.camera].data(), pts[o.point].data(), pb, o);
-      if (!std::isfinite(e)) continue;
-      s += e * e;
-      ++n;
-    }
-    return n ? std::sqrt(s / n) : 0.0;
-  };
-  res.initial_rmse_px = rmse(false);
-
-  // One Ceres problem for both solves. The cost functions live in `costs` (one allocation per
-  // chunk, not owned by Ceres: no per-block new/delete and ownership bookkeeping); outliers found
-  // after the first solve are disabled in place. Inputs were validated above, so Ceres' own
-  // per-block safety checks are skipped.
-  std::deque<ReprojectionCost> costs;
+// One Ceres problem for both solves. The cost functions live in `costs_` (one allocation per chunk,
+// not owned by Ceres: no per-block new/delete and ownership bookkeeping); outliers found after the
+// first solve are disabled in place. Inputs are validated before (validateObservations), so Ceres'
+// own per-block safety checks are skipped.
+ceres::Problem::Options problemOptions() {
   ceres::Problem::Options popt;
   popt.manifold_ownership = ceres::TAKE_OWNERSHIP;
   popt.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   popt.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   popt.disable_all_safety_checks = true;
-  ceres::HuberLoss huber(opt.huber_px);
-  ceres::Problem problem(popt);
-  std::vector<ReprojectionCost*> cost_of(pb.observations.size(), nullptr);
-  std::vector<bool> cam_used(nc, false), pt_used(np, false);
-  auto build = [&]() {
-    for (std::size_t k = 0; k < pb.observations.size(); ++k) {
-      if (!res.inlier[k]) continue;
-      const auto& o = pb.observations[k];
-      ReprojectionCost* cost = &costs.emplace_back(o.uv, o.sigma, pb.fx, pb.fy, pb.cx, pb.cy);
-      cost_of[k] = cost;
-      problem.AddResidualBlock(cost, &huber, poses[o.camera].data(), pts[o.point].data());
-      cam_used[o.camera] = true;
-      pt_used[o.point] = true;
+  return popt;
+}
+
+ceres::Solver::Options solverOptions(const BundleAdjustmentOptions& opt, int iterations, int free_cams) {
+  ceres::Solver::Options so;
+  // A local window has few cameras: the reduced camera system (6 x free cameras squared) is small
+  // and dense, where DENSE_SCHUR beats SPARSE_SCHUR (bench_mapping_ba: 226 vs 284 ms CPU at 2000
+  // points, 10 free cameras; ITERATIVE_SCHUR with SCHUR_JACOBI was slower still).
+  so.linear_solver_type = free_cams <= kDenseSchurMaxCameras ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
+  so.max_num_iterations = iterations;
+  // Ceres' default function tolerance (1e-6) spends half of a local BA's iterations on cost changes
+  // far below the pixel noise: the default 1e-3 takes bench_mapping_ba (2000 points) from 12 to 5
+  // iterations, free-camera error 1.11 -> 1.13 mm, final RMSE 1.233 -> 1.232 px.
+  so.function_tolerance = opt.function_tolerance;
+  so.num_threads = opt.num_threads;
+  so.max_solver_time_in_seconds = opt.max_solver_time_s;
+  so.minimizer_progress_to_stdout = false;
+  so.logging_type = ceres::SILENT;
+  return so;
+}
+
+// The steps of bundleAdjust on one validated problem: its parameters (poses as in poseToParams,
+// points), the Ceres problem over the inlier observations and the classification in res_.inlier.
+class BundleAdjuster {
+ public:
+  BundleAdjuster(BaProblem& pb, const BundleAdjustmentOptions& opt)
+      : pb_(pb),
+        opt_(opt),
+        nc_(static_cast<int>(pb.cameras.size())),
+        np_(static_cast<int>(pb.points.size())),
+        poses_(nc_),
+        pts_(np_),
+        huber_(opt.huber_px),
+        problem_(problemOptions()),
+        cost_of_(pb.observations.size(), nullptr),
+        cam_used_(nc_, false),
+        pt_used_(np_, false) {
+    res_.inlier.assign(pb_.observations.size(), true);
+    for (int i = 0; i < nc_; ++i) poseToParams(pb_.cameras[i].T_world_cam, poses_[i].data());
+    for (int i = 0; i < np_; ++i) pts_[i] = pb_.points[i].position;
+  }
+
+  BaResult run() {
+    res_.initial_rmse_px = rmse(false);
+    rejectBehindCamera();
+    build();
+    bool ok = solve(opt_.max_iterations);
+    if (opt_.refine_iterations > 0 && rejectOutliers() > 0) {
+      disableOutliers();
+      ok = solve(opt_.refine_iterations) && ok;
     }
-    for (int i = 0; i < nc; ++i) {
-      if (!cam_used[i]) continue;
-      problem.SetManifold(poses[i].data(), new PoseManifold());
-      if (pb.cameras[i].fixed) problem.SetParameterBlockConstant(poses[i].data());
+    classify();
+    res_.final_rmse_px = rmse(true);
+    res_.converged = ok;
+    writeBack();
+    return std::move(res_);
+  }
+
+ private:
+  // Reprojection error (pixels) of observation k at the current parameters; infinite behind the camera.
+  double error(std::size_t k) const {
+    const auto& o = pb_.observations[k];
+    return obsError(poses_[o.camera].data(), pts_[o.point].data(), pb_, o);
+  }
+
+  double rmse(bool inliers_only) const {
+    double s = 0;
+    int n = 0;
+    for (std::size_t k = 0; k < pb_.observations.size(); ++k) {
+      if (inliers_only && !res_.inlier[k]) continue;
+      const double e = error(k);
+      if (!std::isfinite(e)) continue;
+      s += e * e;
+      ++n;
     }
-    for (int i = 0; i < np; ++i)
-      if (pt_used[i] && pb.points[i].fixed) problem.SetParameterBlockConstant(pts[i].data());
-  };
-  // Disables the observations no longer counted as inliers; cameras and points left without an
-  // inlier observation are held constant (their rows are all zero).
-  auto disableOutliers = [&]() {
-    std::vector<int> cam_inliers(nc, 0), pt_inliers(np, 0);
-    for (std::size_t k = 0; k < pb.observations.size(); ++k) {
-      if (!cost_of[k]) continue;
-      if (!res.inlier[k]) {
-        cost_of[k]->disable();
-        continue;
-      }
-      ++cam_inliers[pb.observations[k].camera];
-      ++pt_inliers[pb.observations[k].point];
-    }
-    for (int i = 0; i < nc; ++i)
-      if (cam_used[i] && cam_inliers[i] == 0) {
-        problem.SetParameterBlockConstant(poses[i].data());
-        cam_used[i] = false;
-      }
-    for (int i = 0; i < np; ++i)
-      if (pt_used[i] && pt_inliers[i] == 0) {
-        problem.SetParameterBlockConstant(pts[i].data());
-        pt_used[i] = false;
-      }
-  };
-  auto solve = [&](int iterations) {
-    bool any_free = false;
-    int free_cams = 0;
-    for (int i = 0; i < nc; ++i)
-      if (cam_used[i] && !pb.cameras[i].fixed) {
-        any_free = true;
-        ++free_cams;
-      }
-    for (int i = 0; i < np; ++i) any_free = any_free || (pt_used[i] && !pb.points[i].fixed);
-    if (!any_free || problem.NumResidualBlocks() == 0) return true;
-    ceres::Solver::Options so;
-    // A local window has few cameras: the reduced camera system (6 x free cameras squared) is small
-    // and dense, where DENSE_SCHUR beats SPARSE_SCHUR (bench_mapping_ba: 226 vs 284 ms CPU at 2000
-    // points, 10 free cameras; ITERATIVE_SCHUR with SCHUR_JACOBI was slower still).
-    so.linear_solver_type = free_cams <= kDenseSchurMaxCameras ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
-    so.max_num_iterations = iterations;
-    // Ceres' default function tolerance (1e-6) spends half of a local BA's iterations on cost changes
-    // far below the pixel noise: the default 1e-3 takes bench_mapping_ba (2000 points) from 12 to 5
-    // iterations, free-camera error 1.11 -> 1.13 mm, final RMSE 1.233 -> 1.232 px.
-    so.function_tolerance = opt.function_tolerance;
-    so.num_threads = opt.num_threads;
-    so.max_solver_time_in_seconds = opt.max_solver_time_s;
-    so.minimizer_progress_to_stdout = false;
-    so.logging_type = ceres::SILENT;
-    // Schur ordering: points first.
-    auto* ordering = new ceres::ParameterBlockOrdering;
-    for (int i = 0; i < np; ++i)
-      if (problem.HasParameterBlock(pts[i].data())) ordering->AddElementToGroup(pts[i].data(), 0);
-    for (int i = 0; i < nc; ++i)
-      if (problem.HasParameterBlock(poses[i].data())) ordering->AddElementToGroup(poses[i].data(), 1);
-    so.linear_solver_ordering.reset(ordering);
-    ceres::Solver::Summary summary;
-    ceres::Solve(so, &problem, &summary);
-    res.iterations += static_cast<int>(summary.iterations.size());
-    return summary.termination_type == ceres::CONVERGENCE || summary.termination_type == ceres::NO_CONVERGENCE ||
-           summary.termination_type == ceres::USER_SUCCESS;
-  };
+    return n ? std::sqrt(s / n) : 0.0;
+  }
 
   // Observations already behind the camera cannot be optimised meaningfully.
-  for (std::size_t k = 0; k < pb.observations.size(); ++k) {
-    const auto& o = pb.observations[k];
-    const double e = obsError(poses[o.camera].data(), pts[o.point].data(), pb, o);
-    if (!std::isfinite(e)) res.inlier[k] = false;
+  void rejectBehindCamera() {
+    for (std::size_t k = 0; k < pb_.observations.size(); ++k)
+      if (!std::isfinite(error(k))) res_.inlier[k] = false;
   }
-  build();
-  bool ok = solve(opt.max_iterations);
-  if (opt.refine_iterations > 0) {
+
+  // A residual block per inlier observation; the used poses on the pose manifold, the fixed cameras
+  // and points constant.
+  void build() {
+    for (std::size_t k = 0; k < pb_.observations.size(); ++k) {
+      if (!res_.inlier[k]) continue;
+      const auto& o = pb_.observations[k];
+      ReprojectionCost* cost = &costs_.emplace_back(o.uv, o.sigma, pb_.fx, pb_.fy, pb_.cx, pb_.cy);
+      cost_of_[k] = cost;
+      problem_.AddResidualBlock(cost, &huber_, poses_[o.camera].data(), pts_[o.point].data());
+      cam_used_[o.camera] = true;
+      pt_used_[o.point] = true;
+    }
+    for (int i = 0; i < nc_; ++i) {
+      if (!cam_used_[i]) continue;
+      problem_.SetManifold(poses_[i].data(), new PoseManifold());
+      if (pb_.cameras[i].fixed) problem_.SetParameterBlockConstant(poses_[i].data());
+    }
+    for (int i = 0; i < np_; ++i)
+      if (pt_used_[i] && pb_.points[i].fixed) problem_.SetParameterBlockConstant(pts_[i].data());
+  }
+
+  // After the first solve: inliers whose error exceeds outlier_px x sigma are no longer. Returns how many.
+  int rejectOutliers() {
     int removed = 0;
-    for (std::size_t k = 0; k < pb.observations.size(); ++k) {
-      if (!res.inlier[k]) continue;
-      const auto& o = pb.observations[k];
-      const double e = obsError(poses[o.camera].data(), pts[o.point].data(), pb, o);
-      if (!(e <= opt.outlier_px * o.sigma)) {
-        res.inlier[k] = false;
+    for (std::size_t k = 0; k < pb_.observations.size(); ++k) {
+      if (!res_.inlier[k]) continue;
+      if (!(error(k) <= opt_.outlier_px * pb_.observations[k].sigma)) {
+        res_.inlier[k] = false;
         ++removed;
       }
     }
-    if (removed > 0) {
-      disableOutliers();
-      ok = solve(opt.refine_iterations) && ok;
+    return removed;
+  }
+
+  // Disables the observations no longer counted as inliers; cameras and points left without an
+  // inlier observation are held constant (their rows are all zero).
+  void disableOutliers() {
+    std::vector<int> cam_inliers(nc_, 0), pt_inliers(np_, 0);
+    for (std::size_t k = 0; k < pb_.observations.size(); ++k) {
+      if (!cost_of_[k]) continue;
+      if (!res_.inlier[k]) {
+        cost_of_[k]->disable();
+        continue;
+      }
+      ++cam_inliers[pb_.observations[k].camera];
+      ++pt_inliers[pb_.observations[k].point];
+    }
+    for (int i = 0; i < nc_; ++i)
+      if (cam_used_[i] && cam_inliers[i] == 0) {
+        problem_.SetParameterBlockConstant(poses_[i].data());
+        cam_used_[i] = false;
+      }
+    for (int i = 0; i < np_; ++i)
+      if (pt_used_[i] && pt_inliers[i] == 0) {
+        problem_.SetParameterBlockConstant(pts_[i].data());
+        pt_used_[i] = false;
+      }
+  }
+
+  // One Levenberg-Marquardt solve (nothing to do without a free parameter block or a residual).
+  // Returns false when Ceres failed.
+  bool solve(int iterations) {
+    bool any_free = false;
+    int free_cams = 0;
+    for (int i = 0; i < nc_; ++i)
+      if (cam_used_[i] && !pb_.cameras[i].fixed) {
+        any_free = true;
+        ++free_cams;
+      }
+    for (int i = 0; i < np_; ++i) any_free = any_free || (pt_used_[i] && !pb_.points[i].fixed);
+    if (!any_free || problem_.NumResidualBlocks() == 0) return true;
+    ceres::Solver::Options so = solverOptions(opt_, iterations, free_cams);
+    // Schur ordering: points first.
+    auto* ordering = new ceres::ParameterBlockOrdering;
+    for (int i = 0; i < np_; ++i)
+      if (problem_.HasParameterBlock(pts_[i].data())) ordering->AddElementToGroup(pts_[i].data(), 0);
+    for (int i = 0; i < nc_; ++i)
+      if (problem_.HasParameterBlock(poses_[i].data())) ordering->AddElementToGroup(poses_[i].data(), 1);
+    so.linear_solver_ordering.reset(ordering);
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem_, &summary);
+    res_.iterations += static_cast<int>(summary.iterations.size());
+    return summary.termination_type == ceres::CONVERGENCE || summary.termination_type == ceres::NO_CONVERGENCE ||
+           summary.termination_type == ceres::USER_SUCCESS;
+  }
+
+  // Final classification of every observation (also those left out of the solves).
+  void classify() {
+    res_.outliers = 0;
+    for (std::size_t k = 0; k < pb_.observations.size(); ++k) {
+      res_.inlier[k] = error(k) <= opt_.outlier_px * pb_.observations[k].sigma;
+      if (!res_.inlier[k]) ++res_.outliers;
     }
   }
-  // Final classification.
-  res.outliers = 0;
-  for (std::size_t k = 0; k < pb.observations.size(); ++k) {
-    const auto& o = pb.observations[k];
-    const double e = obsError(poses[o.camera].data(), pts[o.point].data(), pb, o);
-    res.inlier[k] = e <= opt.outlier_px * o.sigma;
-    if (!res.inlier[k]) ++res.outliers;
-  }
-  res.final_rmse_px = rmse(true);
-  res.converged = ok;
 
-  for (int i = 0; i < nc; ++i)
-    if (!pb.cameras[i].fixed) pb.cameras[i].T_world_cam = poseFromParams(poses[i].data());
-  for (int i = 0; i < np; ++i)
-    if (!pb.points[i].fixed) pb.points[i].position = pts[i];
+  // The adjusted cameras and points (the fixed ones as they were) back into the problem.
+  void writeBack() {
+    for (int i = 0; i < nc_; ++i)
+      if (!pb_.cameras[i].fixed) pb_.cameras[i].T_world_cam = poseFromParams(poses_[i].data());
+    for (int i = 0; i < np_; ++i)
+      if (!pb_.points[i].fixed) pb_.points[i].position = pts_[i];
+  }
+
+  BaProblem& pb_;
+  const BundleAdjustmentOptions& opt_;
+  const int nc_, np_;
+  BaResult res_;
+  std::vector<std::array<double, 7>> poses_;
+  std::vector<Eigen::Vector3d> pts_;
+  // Declared before problem_, which refers to them: destroyed after it.
+  std::deque<ReprojectionCost> costs_;
+  ceres::HuberLoss huber_;
+  ceres::Problem problem_;
+  std::vector<ReprojectionCost*> cost_of_;
+  std::vector<bool> cam_used_, pt_used_;
+};
+
+}  // namespace
+
+BaResult bundleAdjust(BaProblem& pb, const BundleAdjustmentOptions& opt) {
+  const auto t0 = std::chrono::steady_clock::now();
+  validateObservations(pb);
+  BaResult res = BundleAdjuster(pb, opt).run();
   res.time_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return res;
 }

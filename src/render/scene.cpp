@@ -279,7 +279,9 @@ const std::vector<std::string>& sceneNames() {
   return names;
 }
 
-Scene makeScene(const SceneOptions& opts) {
+namespace {
+
+void validateSceneOptions(const SceneOptions& opts) {
   const auto& names = sceneNames();
   if (std::find(names.begin(), names.end(), opts.name) == names.end()) {
     std::string list;
@@ -289,144 +291,192 @@ Scene makeScene(const SceneOptions& opts) {
   if (opts.textures != "auto" && opts.textures != "procedural" && opts.textures != "photo")
     fail("unknown texture source '{}' (valid: auto, procedural, photo)", opts.textures);
   if (opts.texture_size < 16 || opts.texture_size > 8192) fail("texture size {} outside 16..8192", opts.texture_size);
+}
 
-  Scene sc;
-  sc.name = opts.name;
-  std::vector<fs::path> photos;
-  if (opts.textures != "procedural") {
-    const fs::path dir = defaultDataDir(opts.data_dir);
-    photos = findPhotos(dir);
-    if (photos.empty() && opts.textures == "photo")
-      fail(
-          "no photos for textures found under '{}' (need strecha_fountain-P11, new_tsukuba_150 or "
-          "opencv_chessboard); use textures=procedural",
-          dir.string());
+// The scene's textures, added to Scene::textures in the order asked for. Texture k: a photo (when
+// available and allowed), blended with procedural detail so nothing is flat, or procedural alone.
+// The photo order is shuffled by the seed.
+class TextureSource {
+ public:
+  TextureSource(const SceneOptions& opts, Scene& sc) : opts_(opts), sc_(sc) {
+    if (opts.textures != "procedural") {
+      const fs::path dir = defaultDataDir(opts.data_dir);
+      photos_ = findPhotos(dir);
+      if (photos_.empty() && opts.textures == "photo")
+        fail(
+            "no photos for textures found under '{}' (need strecha_fountain-P11, new_tsukuba_150 or "
+            "opencv_chessboard); use textures=procedural",
+            dir.string());
+    }
+    cv::RNG prng(mix(opts.seed, 99));
+    order_.resize(photos_.size());
+    for (size_t i = 0; i < order_.size(); ++i) order_[i] = i;
+    for (size_t i = order_.size(); i > 1; --i) std::swap(order_[i - 1], order_[prng.uniform(0, static_cast<int>(i))]);
   }
-  // Texture k: a photo (when available), blended with procedural detail so nothing is flat, or
-  // procedural alone. The photo order is shuffled by the seed.
-  cv::RNG prng(mix(opts.seed, 99));
-  std::vector<size_t> order(photos.size());
-  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-  for (size_t i = order.size(); i > 1; --i) std::swap(order[i - 1], order[prng.uniform(0, static_cast<int>(i))]);
-  size_t next_photo = 0;
-  auto texture = [&](int style, bool allow_photo) -> int {
-    const uint64_t tseed = mix(opts.seed, sc.textures.size() + 1);
-    cv::Mat tex = proceduralTexture(opts.texture_size, tseed, style);
-    if (allow_photo && !photos.empty()) {
-      const fs::path& p = photos[order[next_photo++ % order.size()]];
+
+  // A new texture of procedural `style` (proceduralTexture); its index in Scene::textures.
+  int operator()(int style, bool allow_photo) {
+    const uint64_t tseed = mix(opts_.seed, sc_.textures.size() + 1);
+    cv::Mat tex = proceduralTexture(opts_.texture_size, tseed, style);
+    if (allow_photo && !photos_.empty()) {
+      const fs::path& p = photos_[order_[next_photo_++ % order_.size()]];
       cv::Mat photo = cv::imread(p.string(), cv::IMREAD_COLOR);
       if (!photo.empty()) {
-        cv::resize(photo, photo, cv::Size(opts.texture_size * photo.cols / std::max(1, photo.rows), opts.texture_size),
-                   0, 0, cv::INTER_AREA);
+        cv::resize(photo, photo,
+                   cv::Size(opts_.texture_size * photo.cols / std::max(1, photo.rows), opts_.texture_size), 0, 0,
+                   cv::INTER_AREA);
         cv::Mat proc;
         cv::resize(tex, proc, photo.size(), 0, 0, cv::INTER_LINEAR);
         cv::addWeighted(photo, 0.72, proc, 0.28, 0.0, tex);
-        sc.photographic = true;
+        sc_.photographic = true;
       } else {
         spdlog::warn("texture photo '{}' unreadable; using a procedural texture", p.string());
       }
     }
-    sc.textures.push_back(tex);
-    return static_cast<int>(sc.textures.size()) - 1;
-  };
-  Builder b(mix(opts.seed, 7), &sc.textures);
+    sc_.textures.push_back(tex);
+    return static_cast<int>(sc_.textures.size()) - 1;
+  }
 
-  if (opts.name == "room") {
-    const Vector3d lo(-3, -2.5, 0), hi(3, 2.5, 2.8);
-    const int floor_t = texture(2, false), ceil_t = texture(0, true);
-    const std::array<int, 4> walls = {texture(0, true), texture(0, true), texture(0, true), texture(0, true)};
-    b.roomShell(lo, hi, floor_t, ceil_t, walls, 1.4);
-    const int wood = texture(1, false), box_a = texture(0, true), box_b = texture(0, true), box_c = texture(0, false);
-    b.table(wood, wood, {0.4, 1.7}, 1.4, 0.8, 0.75);
-    b.box(box_a, {1.9, -2.1, 0}, {2.5, -1.5, 0.6}, 0.6);
-    b.box(box_b, {2.2, 1.6, 0}, {2.7, 2.0, 0.9}, 0.6);
-    b.box(box_c, {-2.4, 1.6, 0}, {-1.6, 2.1, 0.5}, 0.6);
-    b.box(box_a, {-2.2, 1.7, 0.5}, {-1.8, 2.0, 0.8}, 0.5);
-    b.box(box_b, {-0.1, 1.5, 0.75}, {0.25, 1.8, 1.0}, 0.4);  // on the table
-    b.box(wood, {-3.0, -1.2, 0}, {-2.55, 0.6, 2.0}, 0.8);    // shelf against the -x wall
-    b.box(box_c, {-0.8, -2.5, 0}, {0.4, -2.2, 1.1}, 0.7);    // cabinet against the -y wall
-    sc.landmarks = {{"box_a_top_corner", {1.9, -2.1, 0.6}},
-                    {"box_b_top_corner", {2.2, 1.6, 0.9}},
-                    {"table_box_top_corner", {-0.1, 1.5, 1.0}},
-                    {"shelf_top_corner", {-2.55, -1.2, 2.0}}};
-    sc.bbox_min = lo;
-    sc.bbox_max = hi;
-    sc.camera_min = {-1.3, -1.1, 1.2};
-    sc.camera_max = {1.3, 1.0, 1.75};
-    sc.focus = {0, 0, 1.2};
-    sc.anchor = {0, 0, 1.5};
-    sc.look_outward = true;
-    sc.loop_height = 1.5;
-  } else if (opts.name == "turntable") {
-    const Vector3d lo(-4, -4, 0), hi(4, 4, 3);
-    const int floor_t = texture(2, false), ceil_t = texture(0, true);
-    const std::array<int, 4> walls = {texture(0, true), texture(0, true), texture(0, true), texture(0, true)};
-    b.roomShell(lo, hi, floor_t, ceil_t, walls, 1.5);
-    const int wood = texture(1, false), obj_a = texture(0, true), obj_b = texture(0, false);
-    b.table(wood, wood, {0, 0}, 1.0, 1.0, 0.7);
-    b.box(obj_a, {-0.25, -0.2, 0.7}, {0.15, 0.2, 0.95}, 0.3);
-    b.box(obj_b, {-0.15, -0.1, 0.95}, {0.05, 0.1, 1.1}, 0.25);
-    b.prism(obj_b, 0.25, 0.15, 0.08, 0.7, 1.05, 10, 0.3);
-    sc.landmarks = {{"object_top_corner", {-0.15, -0.1, 1.1}}, {"object_base_corner", {0.15, 0.2, 0.95}}};
-    sc.bbox_min = lo;
-    sc.bbox_max = hi;
-    sc.camera_min = {-1.6, -1.6, 1.1};
-    sc.camera_max = {1.6, 1.6, 1.7};
-    sc.focus = {0, 0, 0.9};
-    sc.anchor = {0, -1.4, 1.4};
-    sc.handheld_sweep = 1.2;
-    sc.look_outward = false;
-    sc.loop_height = 1.4;
-  } else if (opts.name == "plane") {
-    const int t = texture(0, true);
-    b.quad(t, {-3, 2, -0.5}, {3, 2, -0.5}, {3, 2, 3.5}, {-3, 2, 3.5}, 1.2, {0, -1, 0});
-    sc.bbox_min = {-3, 2, -0.5};
-    sc.bbox_max = {3, 2, 3.5};
-    sc.camera_min = {-0.6, -0.4, 1.2};
-    sc.camera_max = {0.6, 1.0, 1.8};  // forward motion approaches the plane up to 1 m
-    sc.focus = {0, 2, 1.5};
-    sc.anchor = {0, -0.1, 1.5};
-    sc.handheld_sweep = 0.3;
-    sc.look_outward = false;
-    sc.loop_height = 1.5;
-    sc.landmarks = {{"plane_centre", {0, 2, 1.5}}};
-  } else {  // corridor: ring between the outer walls and an inner block
-    const Vector3d lo(-6, -4, 0), hi(6, 4, 2.5);
-    const int floor_t = texture(2, false), ceil_t = texture(0, false);
-    std::array<int, 4> outer, inner;
-    for (auto& t : outer) t = texture(0, true);
-    for (auto& t : inner) t = texture(0, true);
-    b.roomShell(lo, hi, floor_t, ceil_t, outer, 1.3);
-    // Inner block (outward-facing walls; its top is hidden by the ceiling).
-    b.box(inner[0], {-4, -2, 0}, {0, 2, 2.5}, 1.3);
-    b.box(inner[1], {0, -2, 0}, {4, 2, 2.5}, 1.3);
-    const int crate = texture(0, false), crate2 = texture(0, true);
-    b.box(crate, {-5.9, -3.9, 0}, {-5.4, -3.4, 0.6}, 0.5);
-    b.box(crate2, {5.3, 3.3, 0}, {5.9, 3.9, 0.8}, 0.5);
-    b.box(inner[2], {1.0, -3.95, 0}, {1.8, -3.6, 1.2}, 0.6);
-    b.box(inner[3], {-2.0, 3.6, 0}, {-1.2, 3.95, 1.0}, 0.6);
-    sc.landmarks = {{"crate_top_corner", {-5.4, -3.4, 0.6}}, {"block_corner", {4, 2, 2.5}}};
-    sc.bbox_min = lo;
-    sc.bbox_max = hi;
-    sc.camera_min = {-5.5, -3.5, 1.2};
-    sc.camera_max = {5.5, 3.5, 1.7};
-    sc.focus = {0, 0, 1.25};
-    sc.anchor = {5, 0, 1.5};
-    sc.look_outward = true;
-    sc.loop_height = 1.5;
-    // Corridor centreline (x = +-5, y = +-3), corners rounded with radius 0.6.
-    const double X = 5.0, Y = 3.0, r = 0.6;
-    const std::array<Eigen::Vector2d, 4> corners = {Eigen::Vector2d(X, -Y), Eigen::Vector2d(X, Y),
-                                                    Eigen::Vector2d(-X, Y), Eigen::Vector2d(-X, -Y)};
-    for (int c = 0; c < 4; ++c) {
-      // Arc centre inside the corner; CCW travel turns from (c - 1) * 90 deg to c * 90 deg.
-      const Eigen::Vector2d ctr = corners[c] - r * corners[c].cwiseSign();
-      for (int k = 0; k <= 6; ++k) {
-        const double a = (c - 1) * M_PI / 2 + k * (M_PI / 2) / 6.0;
-        sc.loop_path.push_back(ctr + r * Eigen::Vector2d(std::cos(a), std::sin(a)));
-      }
+ private:
+  const SceneOptions& opts_;
+  Scene& sc_;
+  std::vector<fs::path> photos_;
+  std::vector<size_t> order_;
+  size_t next_photo_ = 0;
+};
+
+// The scenes' geometry, textures (asked for in a fixed order: it fixes their seeds and photos),
+// landmarks and camera region.
+
+// A furnished room: table, boxes, a shelf and a cabinet; the camera looks outwards from the middle.
+void buildRoom(Builder& b, TextureSource& texture, Scene& sc) {
+  const Vector3d lo(-3, -2.5, 0), hi(3, 2.5, 2.8);
+  const int floor_t = texture(2, false), ceil_t = texture(0, true);
+  const std::array<int, 4> walls = {texture(0, true), texture(0, true), texture(0, true), texture(0, true)};
+  b.roomShell(lo, hi, floor_t, ceil_t, walls, 1.4);
+  const int wood = texture(1, false), box_a = texture(0, true), box_b = texture(0, true), box_c = texture(0, false);
+  b.table(wood, wood, {0.4, 1.7}, 1.4, 0.8, 0.75);
+  b.box(box_a, {1.9, -2.1, 0}, {2.5, -1.5, 0.6}, 0.6);
+  b.box(box_b, {2.2, 1.6, 0}, {2.7, 2.0, 0.9}, 0.6);
+  b.box(box_c, {-2.4, 1.6, 0}, {-1.6, 2.1, 0.5}, 0.6);
+  b.box(box_a, {-2.2, 1.7, 0.5}, {-1.8, 2.0, 0.8}, 0.5);
+  b.box(box_b, {-0.1, 1.5, 0.75}, {0.25, 1.8, 1.0}, 0.4);  // on the table
+  b.box(wood, {-3.0, -1.2, 0}, {-2.55, 0.6, 2.0}, 0.8);    // shelf against the -x wall
+  b.box(box_c, {-0.8, -2.5, 0}, {0.4, -2.2, 1.1}, 0.7);    // cabinet against the -y wall
+  sc.landmarks = {{"box_a_top_corner", {1.9, -2.1, 0.6}},
+                  {"box_b_top_corner", {2.2, 1.6, 0.9}},
+                  {"table_box_top_corner", {-0.1, 1.5, 1.0}},
+                  {"shelf_top_corner", {-2.55, -1.2, 2.0}}};
+  sc.bbox_min = lo;
+  sc.bbox_max = hi;
+  sc.camera_min = {-1.3, -1.1, 1.2};
+  sc.camera_max = {1.3, 1.0, 1.75};
+  sc.focus = {0, 0, 1.2};
+  sc.anchor = {0, 0, 1.5};
+  sc.look_outward = true;
+  sc.loop_height = 1.5;
+}
+
+// A table with objects in a larger room; the camera goes around them.
+void buildTurntable(Builder& b, TextureSource& texture, Scene& sc) {
+  const Vector3d lo(-4, -4, 0), hi(4, 4, 3);
+  const int floor_t = texture(2, false), ceil_t = texture(0, true);
+  const std::array<int, 4> walls = {texture(0, true), texture(0, true), texture(0, true), texture(0, true)};
+  b.roomShell(lo, hi, floor_t, ceil_t, walls, 1.5);
+  const int wood = texture(1, false), obj_a = texture(0, true), obj_b = texture(0, false);
+  b.table(wood, wood, {0, 0}, 1.0, 1.0, 0.7);
+  b.box(obj_a, {-0.25, -0.2, 0.7}, {0.15, 0.2, 0.95}, 0.3);
+  b.box(obj_b, {-0.15, -0.1, 0.95}, {0.05, 0.1, 1.1}, 0.25);
+  b.prism(obj_b, 0.25, 0.15, 0.08, 0.7, 1.05, 10, 0.3);
+  sc.landmarks = {{"object_top_corner", {-0.15, -0.1, 1.1}}, {"object_base_corner", {0.15, 0.2, 0.95}}};
+  sc.bbox_min = lo;
+  sc.bbox_max = hi;
+  sc.camera_min = {-1.6, -1.6, 1.1};
+  sc.camera_max = {1.6, 1.6, 1.7};
+  sc.focus = {0, 0, 0.9};
+  sc.anchor = {0, -1.4, 1.4};
+  sc.handheld_sweep = 1.2;
+  sc.look_outward = false;
+  sc.loop_height = 1.4;
+}
+
+// One textured wall, seen from the front.
+void buildPlane(Builder& b, TextureSource& texture, Scene& sc) {
+  const int t = texture(0, true);
+  b.quad(t, {-3, 2, -0.5}, {3, 2, -0.5}, {3, 2, 3.5}, {-3, 2, 3.5}, 1.2, {0, -1, 0});
+  sc.bbox_min = {-3, 2, -0.5};
+  sc.bbox_max = {3, 2, 3.5};
+  sc.camera_min = {-0.6, -0.4, 1.2};
+  sc.camera_max = {0.6, 1.0, 1.8};  // forward motion approaches the plane up to 1 m
+  sc.focus = {0, 2, 1.5};
+  sc.anchor = {0, -0.1, 1.5};
+  sc.handheld_sweep = 0.3;
+  sc.look_outward = false;
+  sc.loop_height = 1.5;
+  sc.landmarks = {{"plane_centre", {0, 2, 1.5}}};
+}
+
+// Corridor centreline (x = +-5, y = +-3), corners rounded with radius 0.6.
+std::vector<Eigen::Vector2d> corridorLoopPath() {
+  std::vector<Eigen::Vector2d> path;
+  const double X = 5.0, Y = 3.0, r = 0.6;
+  const std::array<Eigen::Vector2d, 4> corners = {Eigen::Vector2d(X, -Y), Eigen::Vector2d(X, Y), Eigen::Vector2d(-X, Y),
+                                                  Eigen::Vector2d(-X, -Y)};
+  for (int c = 0; c < 4; ++c) {
+    // Arc centre inside the corner; CCW travel turns from (c - 1) * 90 deg to c * 90 deg.
+    const Eigen::Vector2d ctr = corners[c] - r * corners[c].cwiseSign();
+    for (int k = 0; k <= 6; ++k) {
+      const double a = (c - 1) * M_PI / 2 + k * (M_PI / 2) / 6.0;
+      path.push_back(ctr + r * Eigen::Vector2d(std::cos(a), std::sin(a)));
     }
   }
+  return path;
+}
+
+// A ring corridor between the outer walls and an inner block, walked around.
+void buildCorridor(Builder& b, TextureSource& texture, Scene& sc) {
+  const Vector3d lo(-6, -4, 0), hi(6, 4, 2.5);
+  const int floor_t = texture(2, false), ceil_t = texture(0, false);
+  std::array<int, 4> outer, inner;
+  for (auto& t : outer) t = texture(0, true);
+  for (auto& t : inner) t = texture(0, true);
+  b.roomShell(lo, hi, floor_t, ceil_t, outer, 1.3);
+  // Inner block (outward-facing walls; its top is hidden by the ceiling).
+  b.box(inner[0], {-4, -2, 0}, {0, 2, 2.5}, 1.3);
+  b.box(inner[1], {0, -2, 0}, {4, 2, 2.5}, 1.3);
+  const int crate = texture(0, false), crate2 = texture(0, true);
+  b.box(crate, {-5.9, -3.9, 0}, {-5.4, -3.4, 0.6}, 0.5);
+  b.box(crate2, {5.3, 3.3, 0}, {5.9, 3.9, 0.8}, 0.5);
+  b.box(inner[2], {1.0, -3.95, 0}, {1.8, -3.6, 1.2}, 0.6);
+  b.box(inner[3], {-2.0, 3.6, 0}, {-1.2, 3.95, 1.0}, 0.6);
+  sc.landmarks = {{"crate_top_corner", {-5.4, -3.4, 0.6}}, {"block_corner", {4, 2, 2.5}}};
+  sc.bbox_min = lo;
+  sc.bbox_max = hi;
+  sc.camera_min = {-5.5, -3.5, 1.2};
+  sc.camera_max = {5.5, 3.5, 1.7};
+  sc.focus = {0, 0, 1.25};
+  sc.anchor = {5, 0, 1.5};
+  sc.look_outward = true;
+  sc.loop_height = 1.5;
+  sc.loop_path = corridorLoopPath();
+}
+
+}  // namespace
+
+Scene makeScene(const SceneOptions& opts) {
+  validateSceneOptions(opts);
+  Scene sc;
+  sc.name = opts.name;
+  TextureSource texture(opts, sc);
+  Builder b(mix(opts.seed, 7), &sc.textures);
+  if (opts.name == "room")
+    buildRoom(b, texture, sc);
+  else if (opts.name == "turntable")
+    buildTurntable(b, texture, sc);
+  else if (opts.name == "plane")
+    buildPlane(b, texture, sc);
+  else
+    buildCorridor(b, texture, sc);
   sc.meshes = b.take();
   return sc;
 }

@@ -139,6 +139,175 @@ std::vector<SE3> CameraTrajectory::sample(int frames, double fps) const {
   return out;
 }
 
+namespace {
+
+// What every trajectory is made from: the scene's camera region, where to look, and the closed path
+// around it (the scene's loop path, else an ellipse in the camera region), with the start on it and
+// an initial heading drawn from the trajectory's random generator.
+struct Motion {
+  Vector3d cmin, cmax, centre, half, focus, anchor;
+  double loop_h = 0;
+  bool outward = false;
+  double sweep = 0;
+  double base_angle = 0, base_radius = 0;
+  bool has_path = false;
+  ClosedPath path{std::vector<Vector2d>{}};
+  double start_s = 0, yaw0 = 0;
+};
+
+Motion sceneMotion(const Scene& sc, cv::RNG& rng) {
+  Motion m;
+  m.cmin = sc.camera_min;
+  m.cmax = sc.camera_max;
+  m.centre = 0.5 * (m.cmin + m.cmax);
+  m.half = 0.5 * (m.cmax - m.cmin);
+  m.focus = sc.focus;
+  m.anchor = sc.anchor;
+  m.loop_h = sc.loop_height;
+  m.outward = sc.look_outward;
+  m.sweep = sc.handheld_sweep;
+  m.base_angle = std::atan2(m.anchor.y() - m.focus.y(), m.anchor.x() - m.focus.x());
+  m.base_radius = std::max(0.3, (m.anchor - m.focus).head<2>().norm());
+  m.has_path = !sc.loop_path.empty();
+  m.path = ClosedPath(m.has_path ? sc.loop_path : ellipse(m.centre.head<2>(), 0.85 * m.half.x(), 0.85 * m.half.y()));
+  m.start_s = rng.uniform(0.0, 1.0) * (m.has_path ? 0.0 : m.path.length());
+  m.yaw0 = rng.uniform(-M_PI, M_PI);
+  return m;
+}
+
+// handheld and fast: a wandering walk with hand shake (fast: stronger, with bursts of speed).
+CameraTrajectory handheldTrajectory(const Motion& m, cv::RNG& rng, const std::string& name, double duration) {
+  const bool fast = name == "fast";
+  Noise3 walk(rng, 0.025, 0.09), look(rng, 0.03, 0.11), aim(rng, 0.04, 0.12);
+  Shake shake(rng, fast ? 0.8 : 0.35, fast ? 0.006 : 0.003);
+  // Time warp for bursts: dtau/dt = 1 + 4 sum_k exp(-(t - t_k)^2 / (2 sigma^2)).
+  std::vector<double> bursts;
+  const double sigma = 0.18;
+  if (fast)
+    for (double tb = rng.uniform(0.8, 2.0); tb < duration; tb += rng.uniform(2.0, 4.0)) bursts.push_back(tb);
+  auto tau = [bursts, sigma](double t) {
+    double s = t;
+    for (double tb : bursts)
+      s += 4.0 * sigma * std::sqrt(M_PI / 2) * (std::erf((t - tb) / (sigma * std::sqrt(2.0))) + 1.0);
+    return s;
+  };
+  return CameraTrajectory(name, duration, [=](double t) {
+    const double u = tau(t);
+    const double gain = fast ? 1.0 + 2.0 * (tau(t + 0.01) - tau(t - 0.01)) / 0.02 / 5.0 : 1.0;
+    Vector3d eye, target;
+    if (m.has_path) {  // walk along the corridor at 0.7 m/s, swaying and looking around
+      const double s = m.start_s + 0.7 * u;
+      const Vector2d p = m.path.at(s), tg = m.path.tangent(s);
+      const Vector2d n(-tg.y(), tg.x());
+      eye << p + 0.3 * walk.x(u) * n, m.loop_h + 0.15 * walk.z(u);
+      const Vector2d d = rot2(tg, 0.6 * look.x(u));
+      target = eye + direction(std::atan2(d.y(), d.x()), -0.1 + 0.15 * look.y(u));
+    } else if (m.outward) {
+      eye = m.centre + m.half.cwiseProduct(walk(u));
+      target = eye + direction(m.yaw0 + 2.2 * look.x(u), -0.12 + 0.22 * look.y(u));
+    } else {  // around the object / in front of the plane, at a wandering angle and distance
+      const double a = m.base_angle + m.sweep * walk.x(u);
+      const double rad = m.base_radius * (1.0 + 0.15 * walk.y(u));
+      eye = Vector3d(m.focus.x() + rad * std::cos(a), m.focus.y() + rad * std::sin(a), m.anchor.z() + 0.2 * walk.z(u));
+      target = m.focus + 0.25 * aim(u);
+    }
+    return shake.apply(lookAt(eye, target), u, gain);
+  });
+}
+
+// rotation: fixed centre, only R changes (no shake translation).
+CameraTrajectory rotationTrajectory(const Motion& m, cv::RNG& rng, const std::string& name, double duration) {
+  Noise3 look(rng, 0.04, 0.12);
+  const Vector3d eye = m.anchor;
+  const Vector3d fwd = m.outward ? direction(m.yaw0, 0) : (m.focus - eye).normalized();
+  const double yaw_f = std::atan2(fwd.y(), fwd.x()), pitch_f = std::asin(std::clamp(fwd.z(), -1.0, 1.0));
+  const double yaw_amp = m.outward ? 1.2 : 0.35;
+  return CameraTrajectory(name, duration, [=](double t) {
+    const Vector3d d = direction(yaw_f + yaw_amp * look.x(t), pitch_f + 0.15 * look.y(t));
+    SE3 T = lookAt(eye, eye + d);
+    const double roll = 0.05 * look.z(t);
+    return SE3(T.rotationMatrix() * Eigen::AngleAxisd(roll, Vector3d::UnitZ()).toRotationMatrix(), eye);
+  });
+}
+
+// orbit: one revolution over the sequence.
+CameraTrajectory orbitTrajectory(const Motion& m, cv::RNG& rng, const std::string& name, double duration) {
+  SmoothNoise bob(rng, 0.05, 0.15);
+  const double phase = rng.uniform(0.0, 2 * M_PI);
+  const double omega = 2 * M_PI / duration;  // one revolution over the sequence
+  if (m.outward) {                           // panoramic orbit: small circle around the anchor, looking outwards
+    const Vector3d c = m.anchor;
+    return CameraTrajectory(name, duration, [=](double t) {
+      const double a = phase + omega * t;
+      const Vector3d eye = c + Vector3d(0.4 * std::cos(a), 0.4 * std::sin(a), 0.1 * bob(t));
+      return lookAt(eye, eye + direction(a, -0.1));
+    });
+  }
+  const Vector3d f = m.focus;
+  const double radius = std::max(0.3, (m.anchor - f).head<2>().norm());
+  // A full revolution around objects (turntable); an arc in front of one-sided scenes (plane).
+  const bool full = m.sweep >= 1.0;
+  const double base_angle = m.base_angle, sweep = m.sweep, anchor_z = m.anchor.z();
+  return CameraTrajectory(name, duration, [=](double t) {
+    const double a = full ? phase + omega * t : base_angle + 1.5 * sweep * std::sin(omega * t);
+    const Vector3d eye(f.x() + radius * std::cos(a), f.y() + radius * std::sin(a), anchor_z + 0.15 * bob(t));
+    return lookAt(eye, f);
+  });
+}
+
+// forward: along the path, across the camera region, or towards the focus.
+CameraTrajectory forwardTrajectory(const Motion& m, cv::RNG& rng, const std::string& name, double duration) {
+  Noise3 sway(rng, 0.1, 0.3);
+  if (m.has_path) {
+    return CameraTrajectory(name, duration, [=](double t) {
+      const double s = m.start_s + 0.9 * t;
+      const Vector2d p = m.path.at(s), tg = m.path.tangent(s);
+      const Vector3d eye(p.x(), p.y(), m.loop_h + 0.02 * sway.z(t));
+      return lookAt(eye, eye + Vector3d(tg.x(), tg.y(), 0.02 * sway.y(t)));
+    });
+  }
+  if (m.outward) {  // across the box along x, looking forward
+    return CameraTrajectory(name, duration, [=](double t) {
+      const double s = std::clamp(t / duration, 0.0, 1.0);
+      const Vector3d eye(m.cmin.x() + s * (m.cmax.x() - m.cmin.x()), m.centre.y() + 0.1 * sway.y(t),
+                         m.centre.z() + 0.05 * sway.z(t));
+      return lookAt(eye, eye + Vector3d(1.0, 0.05 * sway.x(t), -0.05));
+    });
+  }
+  // Towards the focus from the far side of the camera box, stopping at half the distance.
+  const Vector3d from = m.anchor, focus = m.focus;
+  return CameraTrajectory(name, duration, [=](double t) {
+    const double s = std::clamp(t / duration, 0.0, 1.0);
+    const Vector3d eye = from + 0.5 * s * (focus - from) + 0.02 * sway(t);
+    return lookAt(eye, focus + 0.05 * sway(t));
+  });
+}
+
+// loop: once around the closed path; periodic components and an end-vanishing shake make the last
+// pose equal the first.
+CameraTrajectory loopTrajectory(const Motion& m, cv::RNG& rng, const std::string& name, double duration) {
+  Shake shake(rng, 0.3, 0.003);
+  const int look_cycles = 2;
+  return CameraTrajectory(name, duration, [=](double t) {
+    const double s01 = t / duration;
+    const double s = m.start_s + s01 * m.path.length();
+    const Vector2d p = m.path.at(s), tg = m.path.tangent(s);
+    const Vector3d eye(p.x(), p.y(), m.loop_h + 0.08 * std::sin(2 * M_PI * 3 * s01));
+    Vector3d target;
+    if (m.outward) {
+      const double yaw =
+          std::atan2(tg.y(), tg.x()) + (m.has_path ? 0.25 : -0.6) * std::sin(2 * M_PI * look_cycles * s01);
+      target = eye + direction(yaw, -0.08);
+    } else {
+      target = m.focus;
+    }
+    const double env = std::sin(M_PI * std::clamp(s01, 0.0, 1.0));
+    return shake.apply(lookAt(eye, target), t, env);
+  });
+}
+
+}  // namespace
+
 CameraTrajectory makeTrajectory(const Scene& sc, const std::string& name, double duration, uint64_t seed) {
   const auto& names = trajectoryNames();
   if (std::find(names.begin(), names.end(), name) == names.end()) {
@@ -148,137 +317,12 @@ CameraTrajectory makeTrajectory(const Scene& sc, const std::string& name, double
   }
   if (!(duration > 0) || !std::isfinite(duration)) duration = 1.0;
   cv::RNG rng(seed * 0x9E3779B97F4A7C15ull + 12345u);
-  const Vector3d cmin = sc.camera_min, cmax = sc.camera_max;
-  const Vector3d centre = 0.5 * (cmin + cmax), half = 0.5 * (cmax - cmin);
-  const Vector3d focus = sc.focus, anchor = sc.anchor;
-  const double loop_h = sc.loop_height;
-  const bool outward = sc.look_outward;
-  const double sweep = sc.handheld_sweep;
-  const double base_angle = std::atan2(anchor.y() - focus.y(), anchor.x() - focus.x());
-  const double base_radius = std::max(0.3, (anchor - focus).head<2>().norm());
-  const bool has_path = !sc.loop_path.empty();
-  const ClosedPath path(has_path ? sc.loop_path : ellipse(centre.head<2>(), 0.85 * half.x(), 0.85 * half.y()));
-  const double start_s = rng.uniform(0.0, 1.0) * (has_path ? 0.0 : path.length());
-  const double yaw0 = rng.uniform(-M_PI, M_PI);
-
-  if (name == "handheld" || name == "fast") {
-    const bool fast = name == "fast";
-    Noise3 walk(rng, 0.025, 0.09), look(rng, 0.03, 0.11), aim(rng, 0.04, 0.12);
-    Shake shake(rng, fast ? 0.8 : 0.35, fast ? 0.006 : 0.003);
-    // Time warp for bursts: dtau/dt = 1 + 4 sum_k exp(-(t - t_k)^2 / (2 sigma^2)).
-    std::vector<double> bursts;
-    const double sigma = 0.18;
-    if (fast)
-      for (double tb = rng.uniform(0.8, 2.0); tb < duration; tb += rng.uniform(2.0, 4.0)) bursts.push_back(tb);
-    auto tau = [bursts, sigma](double t) {
-      double s = t;
-      for (double tb : bursts)
-        s += 4.0 * sigma * std::sqrt(M_PI / 2) * (std::erf((t - tb) / (sigma * std::sqrt(2.0))) + 1.0);
-      return s;
-    };
-    return CameraTrajectory(name, duration, [=](double t) {
-      const double u = tau(t);
-      const double gain = fast ? 1.0 + 2.0 * (tau(t + 0.01) - tau(t - 0.01)) / 0.02 / 5.0 : 1.0;
-      Vector3d eye, target;
-      if (has_path) {  // walk along the corridor at 0.7 m/s, swaying and looking around
-        const double s = start_s + 0.7 * u;
-        const Vector2d p = path.at(s), tg = path.tangent(s);
-        const Vector2d n(-tg.y(), tg.x());
-        eye << p + 0.3 * walk.x(u) * n, loop_h + 0.15 * walk.z(u);
-        const Vector2d d = rot2(tg, 0.6 * look.x(u));
-        target = eye + direction(std::atan2(d.y(), d.x()), -0.1 + 0.15 * look.y(u));
-      } else if (outward) {
-        eye = centre + half.cwiseProduct(walk(u));
-        target = eye + direction(yaw0 + 2.2 * look.x(u), -0.12 + 0.22 * look.y(u));
-      } else {  // around the object / in front of the plane, at a wandering angle and distance
-        const double a = base_angle + sweep * walk.x(u);
-        const double rad = base_radius * (1.0 + 0.15 * walk.y(u));
-        eye = Vector3d(focus.x() + rad * std::cos(a), focus.y() + rad * std::sin(a), anchor.z() + 0.2 * walk.z(u));
-        target = focus + 0.25 * aim(u);
-      }
-      return shake.apply(lookAt(eye, target), u, gain);
-    });
-  }
-  if (name == "rotation") {  // fixed centre: only R changes (no shake translation)
-    Noise3 look(rng, 0.04, 0.12);
-    const Vector3d eye = anchor;
-    const Vector3d fwd = outward ? direction(yaw0, 0) : (focus - eye).normalized();
-    const double yaw_f = std::atan2(fwd.y(), fwd.x()), pitch_f = std::asin(std::clamp(fwd.z(), -1.0, 1.0));
-    const double yaw_amp = outward ? 1.2 : 0.35;
-    return CameraTrajectory(name, duration, [=](double t) {
-      const Vector3d d = direction(yaw_f + yaw_amp * look.x(t), pitch_f + 0.15 * look.y(t));
-      SE3 T = lookAt(eye, eye + d);
-      const double roll = 0.05 * look.z(t);
-      return SE3(T.rotationMatrix() * Eigen::AngleAxisd(roll, Vector3d::UnitZ()).toRotationMatrix(), eye);
-    });
-  }
-  if (name == "orbit") {
-    SmoothNoise bob(rng, 0.05, 0.15);
-    const double phase = rng.uniform(0.0, 2 * M_PI);
-    const double omega = 2 * M_PI / duration;  // one revolution over the sequence
-    if (outward) {                             // panoramic orbit: small circle around the anchor, looking outwards
-      const Vector3d c = anchor;
-      return CameraTrajectory(name, duration, [=](double t) {
-        const double a = phase + omega * t;
-        const Vector3d eye = c + Vector3d(0.4 * std::cos(a), 0.4 * std::sin(a), 0.1 * bob(t));
-        return lookAt(eye, eye + direction(a, -0.1));
-      });
-    }
-    const Vector3d f = focus;
-    const double radius = std::max(0.3, (anchor - f).head<2>().norm());
-    // A full revolution around objects (turntable); an arc in front of one-sided scenes (plane).
-    const bool full = sweep >= 1.0;
-    return CameraTrajectory(name, duration, [=](double t) {
-      const double a = full ? phase + omega * t : base_angle + 1.5 * sweep * std::sin(omega * t);
-      const Vector3d eye(f.x() + radius * std::cos(a), f.y() + radius * std::sin(a), anchor.z() + 0.15 * bob(t));
-      return lookAt(eye, f);
-    });
-  }
-  if (name == "forward") {
-    Noise3 sway(rng, 0.1, 0.3);
-    if (has_path) {
-      return CameraTrajectory(name, duration, [=](double t) {
-        const double s = start_s + 0.9 * t;
-        const Vector2d p = path.at(s), tg = path.tangent(s);
-        const Vector3d eye(p.x(), p.y(), loop_h + 0.02 * sway.z(t));
-        return lookAt(eye, eye + Vector3d(tg.x(), tg.y(), 0.02 * sway.y(t)));
-      });
-    }
-    if (outward) {  // across the box along x, looking forward
-      return CameraTrajectory(name, duration, [=](double t) {
-        const double s = std::clamp(t / duration, 0.0, 1.0);
-        const Vector3d eye(cmin.x() + s * (cmax.x() - cmin.x()), centre.y() + 0.1 * sway.y(t),
-                           centre.z() + 0.05 * sway.z(t));
-        return lookAt(eye, eye + Vector3d(1.0, 0.05 * sway.x(t), -0.05));
-      });
-    }
-    // Towards the focus from the far side of the camera box, stopping at half the distance.
-    const Vector3d from = anchor;
-    return CameraTrajectory(name, duration, [=](double t) {
-      const double s = std::clamp(t / duration, 0.0, 1.0);
-      const Vector3d eye = from + 0.5 * s * (focus - from) + 0.02 * sway(t);
-      return lookAt(eye, focus + 0.05 * sway(t));
-    });
-  }
-  // loop: once around the closed path; periodic components and an end-vanishing shake make the
-  // last pose equal the first.
-  Shake shake(rng, 0.3, 0.003);
-  const int look_cycles = 2;
-  return CameraTrajectory(name, duration, [=](double t) {
-    const double s01 = t / duration;
-    const double s = start_s + s01 * path.length();
-    const Vector2d p = path.at(s), tg = path.tangent(s);
-    const Vector3d eye(p.x(), p.y(), loop_h + 0.08 * std::sin(2 * M_PI * 3 * s01));
-    Vector3d target;
-    if (outward) {
-      const double yaw = std::atan2(tg.y(), tg.x()) + (has_path ? 0.25 : -0.6) * std::sin(2 * M_PI * look_cycles * s01);
-      target = eye + direction(yaw, -0.08);
-    } else {
-      target = focus;
-    }
-    const double env = std::sin(M_PI * std::clamp(s01, 0.0, 1.0));
-    return shake.apply(lookAt(eye, target), t, env);
-  });
+  const Motion m = sceneMotion(sc, rng);
+  if (name == "handheld" || name == "fast") return handheldTrajectory(m, rng, name, duration);
+  if (name == "rotation") return rotationTrajectory(m, rng, name, duration);
+  if (name == "orbit") return orbitTrajectory(m, rng, name, duration);
+  if (name == "forward") return forwardTrajectory(m, rng, name, duration);
+  return loopTrajectory(m, rng, name, duration);
 }
 
 }  // namespace nerfslam::render

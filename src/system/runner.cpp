@@ -3,11 +3,8 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
-#include <cmath>
 #include <cstdio>
-#include <fstream>
-#include <map>
-#include <mutex>
+#include <limits>
 #include <thread>
 
 #include <spdlog/spdlog.h>
@@ -25,11 +22,70 @@
 #include "nerfslam/render/synth.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam/system/run_outputs.h"
+#include "nerfslam/system/run_stats.h"
 
 namespace nerfslam {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// ---- Opening: the options, the dataset and the saved map to start from.
+
+// RunOptions::system, else the config file, else the options the map was made with, else the defaults.
+SystemOptions loadRunOptions(const RunOptions& ro) {
+  if (ro.out.empty()) fail("run: --out is required");
+  if (ro.map.has_value() != (ro.map_mode != MapMode::kSlam))
+    fail("run: --map needs --localize or --extend, and those need --map");
+  SystemOptions sys;
+  if (ro.system) {
+    sys = *ro.system;
+  } else if (ro.config) {
+    loadOptionsFile(*ro.config, sys);
+  } else if (ro.map) {
+    sys = loadMapOptions(*ro.map);  // the options the map was made with
+  }
+  if (!ro.nerf) sys.nerf.enabled = false;
+  validateOptions(sys, ro.config ? ro.config->string() : std::string("options"));
+  return sys;
+}
+
+// --dataset, or the demo (no data needed, no display): the synthetic room rendered into OUT/sequence.
+std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
+  std::string spec = ro.dataset;
+  if (spec.empty()) {
+    render::SynthOptions so;
+    so.scene = "room";
+    so.trajectory = "handheld";
+    so.frames = ro.demo_frames;
+    const std::filesystem::path seq = ro.out / "sequence";
+    std::fprintf(stderr, "no --dataset: rendering the synthetic furnished room (%d frames, 640x480, OSMesa) into %s\n",
+                 so.frames, seq.string().c_str());
+    render::writeSynthSequence(so, seq);
+    spec = "tum:" + seq.string();
+  }
+  DatasetOptions dopt;
+  dopt.camera_override = ro.camera;
+  dopt.max_frames = ro.max_frames;
+  return openDataset(spec, dopt);
+}
+
+// The saved map to start from (map_store.h): verified, and refused when made with another camera.
+// Its size is kept for the report: SlamSystem takes the map.
+struct StartMap {
+  LoadedMap loaded;
+  std::size_t keyframes = 0, points = 0;
+};
+
+StartMap openStartMap(const RunOptions& ro, const Camera& camera) {
+  StartMap s;
+  if (!ro.map) return s;
+  s.loaded = loadMapFolder(*ro.map, camera);
+  s.keyframes = s.loaded.map ? s.loaded.map->numKeyframes() : 0;
+  s.points = s.loaded.map ? s.loaded.map->numPoints() : 0;
+  return s;
+}
+
+// ---- Reading: the reader thread decodes frames and hands them to the tracking thread.
 
 struct InputFrame {
   std::size_t index = 0;
@@ -37,14 +93,21 @@ struct InputFrame {
   cv::Mat image;
 };
 
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const double pos = q * (v.size() - 1);
-  const std::size_t lo = static_cast<std::size_t>(std::floor(pos));
-  const std::size_t hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (pos - lo) * (v[hi] - v[lo]);
-}
+// What the reader and the tracking thread share. The failure messages are each written by one
+// thread and read once both have been joined.
+struct FramePipe {
+  FramePipe(const SystemOptions& sys, const RunOptions& ro, std::size_t frames)
+      : queue(static_cast<std::size_t>(sys.frame_queue),
+              ro.realtime ? OverflowPolicy::kDropOldest : OverflowPolicy::kDropNewest),
+        image_problems(frames) {}
+  BoundedQueue<InputFrame> queue;
+  std::atomic<std::size_t> processed{0};     // frames the tracking thread is done with
+  std::atomic<std::size_t> queued{0};        // frames the reader handed over
+  std::atomic<std::size_t> out_of_order{0};  // frames skipped for a timestamp not after the previous one
+  std::atomic<bool> aborted{false};          // the tracking thread failed
+  std::string read_failure, tracking_failure;
+  std::vector<std::string> image_problems;  // by frame: describeImageProblem() ("" for most)
+};
 
 // Mean intensity and a sharpness measure to explain failures ("black", "saturated", "blurred").
 std::string describeImageProblem(const cv::Mat& gray) {
@@ -54,6 +117,299 @@ std::string describeImageProblem(const cv::Mat& gray) {
   if (mean[0] > 247 && stddev[0] < 4) return "saturated";
   if (stddev[0] < 2) return "uniform";
   return "";
+}
+
+std::string describeFrameProblem(const cv::Mat& image) {
+  if (image.channels() == 1) return describeImageProblem(image);
+  cv::Mat grey;
+  cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  return describeImageProblem(grey);
+}
+
+// The reader thread's loop. Frames whose timestamp is not after the previous one are skipped. With
+// --realtime frames are paced at their timestamps (the queue drops the oldest waiting frame when
+// tracking lags); otherwise the reader waits for room in the queue and, in lockstep, until each frame
+// is tracked and mapping is idle. The memory and map size at the end of every window of frames
+// (RunStats) are taken here: the map counts take the map's lock, which the tracking thread never
+// waits for.
+void readFrames(const Dataset& ds, SlamSystem& slam, const RunOptions& ro, const SystemOptions& sys, FramePipe& pipe,
+                RunStats& stats) {
+  setThreadName("nerfslam-read");
+  const bool lockstep = !ro.realtime && sys.lockstep;
+  const auto wall0 = Clock::now();
+  double t_first = 0, last_ts = -std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < ds.size() && !pipe.aborted; ++i) {
+    InputFrame f;
+    try {
+      // Colour for the NeRF (tracking converts to grey itself).
+      DatasetFrame df = ds.load(i, sys.nerf.enabled ? ImageMode::kColor : ImageMode::kGray);
+      f.index = i;
+      f.timestamp = df.timestamp;
+      f.image = std::move(df.image);
+    } catch (const std::exception& e) {
+      pipe.read_failure = e.what();
+      spdlog::error("{}", e.what());
+      break;
+    }
+    if (!(f.timestamp > last_ts)) {
+      ++pipe.out_of_order;
+      spdlog::warn("frame {}: timestamp {:.6f} not after the previous {:.6f}; skipped", i, f.timestamp, last_ts);
+      continue;
+    }
+    last_ts = f.timestamp;
+    pipe.image_problems[i] = describeFrameProblem(f.image);
+    if (i == 0) t_first = f.timestamp;
+    if (ro.realtime) {
+      const auto due =
+          wall0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(f.timestamp - t_first));
+      std::this_thread::sleep_until(due);
+      pipe.queue.tryPush(std::move(f));  // drops the oldest waiting frame when tracking lags
+      ++pipe.queued;
+    } else {
+      if (!pipe.queue.push(std::move(f))) break;
+      ++pipe.queued;
+      if (lockstep) {
+        while (pipe.processed.load() < pipe.queued.load() && !pipe.aborted)
+          std::this_thread::sleep_for(std::chrono::microseconds(200));
+        slam.waitMappingIdle();
+      }
+    }
+    if (pipe.queued.load() % RunStats::kWindow == 0)
+      stats.addWindowSample({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
+  }
+  pipe.queue.close();
+}
+
+// ---- The system: tracking on the tracking thread (mapping and the NeRF run on SlamSystem's own).
+
+// The progress line on stderr.
+void printProgress(SlamSystem& slam, std::size_t index, std::size_t frames, std::size_t processed, double secs) {
+  std::string nerf_line;
+  if (const NerfMapping* n = slam.nerf()) {
+    const NerfMappingStats ns = n->stats();
+    nerf_line = fmt::format("  | NeRF {} views, {} steps, {:.1f} steps/s, {:.2f} M samples/s, PSNR {:.1f} dB", ns.views,
+                            ns.steps, ns.steps_per_second, ns.samples_per_second / 1e6, ns.psnr_recent);
+  }
+  std::fprintf(stderr, "frame %zu/%zu  %.1f frames/s  keyframes %zu  map points %zu  %s%s\n", index + 1, frames,
+               processed / std::max(secs, 1e-9), slam.map().numKeyframes(), slam.map().numPoints(),
+               toString(slam.state()), nerf_line.c_str());
+}
+
+// The tracking thread's loop: tracks the queued frames until the reader closes the queue. A frame
+// that throws ends the run (the reader stops too).
+void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clock::time_point run0, FramePipe& pipe,
+                 RunStats& stats) {
+  setThreadName("nerfslam-track");
+  auto last_print = Clock::now();
+  while (auto f = pipe.queue.pop()) {
+    try {
+      const bool had_map = slam.initialized();
+      stats.addFrame(slam.trackFrame(f->image, f->timestamp, f->index), had_map);
+    } catch (const std::exception& e) {
+      pipe.tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
+      spdlog::error("{}", pipe.tracking_failure);
+      pipe.aborted = true;
+      ++pipe.processed;
+      pipe.queue.close();
+      break;
+    }
+    ++pipe.processed;
+    if (ro.progress && (Clock::now() - last_print > std::chrono::seconds(1))) {
+      last_print = Clock::now();
+      printProgress(slam, f->index, frames, pipe.processed.load(),
+                    std::chrono::duration<double>(Clock::now() - run0).count());
+    }
+  }
+}
+
+// After the last frame: the NeRF trained for final_train_seconds more with the final poses.
+void trainNerfFinal(SlamSystem& slam, const SystemOptions& sys) {
+  NerfMapping* n = slam.nerf();
+  if (!n || !n->hasModel() || !(sys.nerf.final_train_seconds > 0)) return;
+  std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n", sys.nerf.final_train_seconds);
+  n->trainFor(sys.nerf.final_train_seconds, 0, resolveThreads(sys.nerf.final_threads));
+}
+
+// ---- Outputs: the files and report.json.
+
+// The report's fields on the run itself: the dataset, the frames, the system's state at the end.
+nlohmann::json runReport(const Dataset& ds, const RunOptions& ro, const SlamSystem& slam, const FramePipe& pipe,
+                         const StartMap& start, std::size_t frames_tracked, double wall_s) {
+  nlohmann::json rep;
+  rep["dataset"] = ds.root().string();
+  rep["dataset_kind"] = ds.kind();
+  rep["frames"] = ds.size();
+  rep["frames_processed"] = pipe.processed.load();
+  rep["frames_dropped"] = ro.realtime ? pipe.queue.dropped() : 0;
+  rep["frames_out_of_order"] = pipe.out_of_order.load();
+  rep["frames_tracked"] = frames_tracked;
+  rep["initialized"] = slam.initialized();
+  rep["initializations"] = slam.initializationCount();
+  rep["initialization_model"] = slam.initializationModel();
+  rep["relocalizations"] = slam.relocalizations();
+  rep["local_map_rebuilds"] = slam.localMapRebuilds();
+  rep["mode"] = toString(slam.mapMode());
+  rep["map_loaded"] = ro.map ? nlohmann::json(ro.map->string()) : nlohmann::json(nullptr);
+  rep["relocalized_at_frame"] = slam.relocalizedAtFrame();
+  if (ro.map) {
+    rep["map_loaded_keyframes"] = start.keyframes;
+    rep["map_loaded_points"] = start.points;
+    rep["map_load_s"] = start.loaded.seconds;
+  }
+  rep["keyframes"] = slam.map().numKeyframes();
+  rep["keyframes_dropped"] = slam.droppedKeyframes();
+  rep["map_points"] = slam.map().numPoints();
+  rep["realtime"] = ro.realtime;
+  rep["wall_time_s"] = wall_s;
+  rep["peak_rss_mb"] = peakRssMb();
+  rep["frames_per_second"] = pipe.processed.load() / std::max(wall_s, 1e-9);
+  rep["nerf"] = slam.nerf() != nullptr;
+  return rep;
+}
+
+// first_tracked_frame (-1: none) and frames_lost_after_init (frames after it that were not tracked).
+void addTrackingContinuity(const std::vector<FrameRecord>& records, nlohmann::json& rep) {
+  int first_tracked = -1;
+  for (const auto& r : records)
+    if (r.tracked) {
+      first_tracked = static_cast<int>(r.index);
+      break;
+    }
+  rep["first_tracked_frame"] = first_tracked;
+  std::size_t untracked_after = 0;
+  if (first_tracked >= 0)
+    for (const auto& r : records) untracked_after += (static_cast<int>(r.index) > first_tracked && !r.tracked);
+  rep["frames_lost_after_init"] = untracked_after;
+}
+
+// Why the run failed: a frame that could not be read or tracked, or no initialisation (with the
+// frames' image problems and the last attempt's message). Empty: it did not.
+std::string runFailure(const FramePipe& pipe, const SlamSystem& slam) {
+  std::string failure;
+  if (!pipe.read_failure.empty()) failure = pipe.read_failure;
+  if (!pipe.tracking_failure.empty()) failure = pipe.tracking_failure;
+  if (!failure.empty() || slam.initialized()) return failure;
+  std::size_t black = 0, saturated = 0, uniform = 0;
+  for (const auto& p : pipe.image_problems) {
+    black += p == "black";
+    saturated += p == "saturated";
+    uniform += p == "uniform";
+  }
+  failure = fmt::format("not initialised after {} frames", pipe.processed.load());
+  if (black + saturated + uniform > 0)
+    failure += fmt::format(" ({} black, {} saturated, {} featureless frames)", black, saturated, uniform);
+  if (!slam.lastInitMessage().empty()) failure += "; last attempt: " + slam.lastInitMessage();
+  return failure;
+}
+
+struct GroundTruthEval {
+  Trajectory reference;           // empty without ground truth or with fewer than 3 tracked frames
+  std::optional<Sim3> alignment;  // estimate -> ground truth, when the evaluation succeeded
+};
+
+// The estimate against the dataset's ground truth (Sim(3)-aligned): the ate_*, rpe_*, path_length_m,
+// gt_extent_m and ate_max_percent_of_extent fields, or eval_error.
+GroundTruthEval evaluateAgainstGroundTruth(const Dataset& ds, const Trajectory& traj, nlohmann::json& rep) {
+  GroundTruthEval ge;
+  if (!ds.hasGroundTruth() || traj.size() < 3) return ge;
+  Trajectory& ref = ge.reference;
+  for (std::size_t i = 0; i < ds.size(); ++i)
+    if (auto gt = ds.groundTruth(i)) ref.push_back({ds.timestamp(i), *gt});
+  try {
+    eval::TrajectoryEvalOptions eo;
+    eo.align = "sim3";
+    eo.max_dt = 1e-3;
+    const eval::TrajectoryReport tr = eval::evaluateTrajectory(ref, traj, eo);
+    ge.alignment = tr.alignment;
+    rep["ate_rmse_m"] = tr.ape.rmse;
+    rep["ate_max_m"] = tr.ape.max;
+    rep["ate_scale"] = tr.scale;
+    rep["ate_matched"] = tr.matched;
+    rep["rpe_trans"] = tr.has_rpe ? tr.rpe_translation.rmse : 0.0;
+    rep["rpe_rot_deg"] = tr.has_rpe ? tr.rpe_rotation_deg.rmse : 0.0;
+    rep["path_length_m"] = tr.ref_path_length;
+    rep["ate_percent_of_path"] = tr.ape_rmse_percent;
+    // Scene extent (largest distance between ground-truth centres) for multi-view sets.
+    double extent = 0;
+    for (std::size_t a = 0; a < ref.size(); ++a)
+      for (std::size_t b = a + 1; b < ref.size(); ++b)
+        extent = std::max(extent, (ref[a].pose.translation() - ref[b].pose.translation()).norm());
+    rep["gt_extent_m"] = extent;
+    rep["ate_max_percent_of_extent"] = extent > 0 ? 100.0 * tr.ape.max / extent : 0.0;
+  } catch (const std::exception& e) {
+    rep["eval_error"] = e.what();
+  }
+  return ge;
+}
+
+// trajectory.txt, keyframes.txt, map_points.ply, the NeRF outputs (run_outputs.h; a failure there is
+// nerf_error in the report) and the previews.
+void writeRunFiles(SlamSystem& slam, const Dataset& ds, const Trajectory& traj, const GroundTruthEval& ge,
+                   const std::filesystem::path& out, nlohmann::json& rep) {
+  writeTumTrajectory(out / "trajectory.txt", traj);
+  writeTumTrajectory(out / "keyframes.txt", slam.keyframeTrajectory());
+  writeMapPly(out / "map_points.ply", slam.map());
+  render::PreviewCloud dense;
+  if (slam.nerf()) {
+    try {
+      writeNerfOutputs(slam, ds, traj, ge.alignment, out, NerfEvalOptions{}, rep, &dense);
+    } catch (const std::exception& e) {
+      rep["nerf_error"] = e.what();
+      spdlog::error("NeRF outputs: {}", e.what());
+    }
+  }
+  writeRunPreviews(slam, traj, ge.reference, ge.alignment, dense, out);
+}
+
+// The map folder (map_store.h), with the NeRF model: --save-map DIR, else OUT/map (not after
+// --localize: the map is as loaded), when the map has keyframes. Adds map_saved, map_save_s and
+// map_bytes, or map_save_error. Returns true when saving to --save-map failed (the run then exits
+// with 1; OUT/map failing is only reported).
+bool saveRunMap(SlamSystem& slam, const RunOptions& ro, const Camera& camera, const SystemOptions& sys,
+                nlohmann::json& rep) {
+  std::optional<std::filesystem::path> map_dir = ro.save_map;
+  if (!map_dir && ro.save_default_map && ro.map_mode != MapMode::kLocalize) map_dir = ro.out / "map";
+  if (!map_dir || slam.map().numKeyframes() == 0) return false;
+  // The NeRF model goes into the map folder too (written under the model lock).
+  NerfModelWriter write_nerf_model;
+  if (NerfMapping* n = slam.nerf(); n && n->hasModel())
+    write_nerf_model = [n](const std::filesystem::path& p) {
+      n->withModel([&](nerf::NerfModel& m) { nerf::saveModel(m, p); });
+    };
+  try {
+    const MapSaveResult ms = saveMapFolder(*map_dir, slam.map(), camera, sys, write_nerf_model);
+    rep["map_saved"] = map_dir->string();
+    rep["map_save_s"] = ms.seconds;
+    rep["map_bytes"] = ms.bytes;
+  } catch (const std::exception& e) {
+    rep["map_save_error"] = e.what();
+    spdlog::error("saving the map: {}", e.what());
+    return ro.save_map.has_value();
+  }
+  return false;
+}
+
+// The summary on stderr.
+void printSummary(const SlamSystem& slam, const Dataset& ds, const Trajectory& traj, const nlohmann::json& rep,
+                  const std::string& failure, double frames_per_second, const std::filesystem::path& out) {
+  std::fprintf(stderr, "done: %zu/%zu frames tracked, %zu keyframes, %zu map points, %.1f frames/s%s\n", traj.size(),
+               ds.size(), slam.map().numKeyframes(), slam.map().numPoints(), frames_per_second,
+               failure.empty() ? "" : (" — " + failure).c_str());
+  if (rep.contains("ate_rmse_m"))
+    std::fprintf(stderr, "ATE (Sim3) %.4f m = %.3f%% of %.1f m path, scale %.4f\n", rep["ate_rmse_m"].get<double>(),
+                 rep["ate_percent_of_path"].get<double>(), rep["path_length_m"].get<double>(),
+                 rep["ate_scale"].get<double>());
+  if (rep.contains("nerf_psnr_heldout"))
+    std::fprintf(stderr, "NeRF: %lld steps, held-out PSNR %.2f dB (%zu frames), keyframes %.2f dB%s\n",
+                 static_cast<long long>(rep["nerf_steps"].get<int64_t>()), rep["nerf_psnr_heldout"].get<double>(),
+                 rep["nerf_psnr_heldout_frames"].get<size_t>(), rep["nerf_psnr_keyframes"].get<double>(),
+                 rep.contains("nerf_depth_median_abs_rel")
+                     ? fmt::format(", depth error (median abs rel) {:.1f}%",
+                                   100 * rep["nerf_depth_median_abs_rel"].get<double>())
+                           .c_str()
+                     : "");
+  std::fprintf(stderr, "results in %s (report.json, trajectory.txt, map_preview.png%s)\n", out.string().c_str(),
+               slam.nerf() ? ", nerf/, nerf_cloud.ply, mesh.ply" : "");
 }
 
 }  // namespace
@@ -74,400 +430,47 @@ void writeMapPly(const std::filesystem::path& path, const Map& map) {
 }
 
 RunResult runSlam(const RunOptions& ro) {
-  if (ro.out.empty()) fail("run: --out is required");
-  if (ro.map.has_value() != (ro.map_mode != MapMode::kSlam))
-    fail("run: --map needs --localize or --extend, and those need --map");
-  SystemOptions sys;
-  if (ro.system) {
-    sys = *ro.system;
-  } else if (ro.config) {
-    loadOptionsFile(*ro.config, sys);
-  } else if (ro.map) {
-    sys = loadMapOptions(*ro.map);  // the options the map was made with
-  }
-  if (!ro.nerf) sys.nerf.enabled = false;
-  validateOptions(sys, ro.config ? ro.config->string() : std::string("options"));
-  std::string dataset_spec = ro.dataset;
-  if (dataset_spec.empty()) {
-    // The demo: no data needed, no display.
-    render::SynthOptions so;
-    so.scene = "room";
-    so.trajectory = "handheld";
-    so.frames = ro.demo_frames;
-    const std::filesystem::path seq = ro.out / "sequence";
-    std::fprintf(stderr, "no --dataset: rendering the synthetic furnished room (%d frames, 640x480, OSMesa) into %s\n",
-                 so.frames, seq.string().c_str());
-    render::writeSynthSequence(so, seq);
-    dataset_spec = "tum:" + seq.string();
-  }
-  DatasetOptions dopt;
-  dopt.camera_override = ro.camera;
-  dopt.max_frames = ro.max_frames;
-  auto ds = openDataset(dataset_spec, dopt);
+  const SystemOptions sys = loadRunOptions(ro);
+  const std::unique_ptr<Dataset> ds = openRunDataset(ro);
   ensureDirectory(ro.out);
   const Camera& camera = ds->camera();
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
   spdlog::info("options:\n{}", printOptions(sys));
+  StartMap start = openStartMap(ro, camera);
+  SlamSystem slam(camera, sys, std::move(start.loaded.map), ro.map_mode);
+  if (start.loaded.nerf_model && slam.nerf())
+    slam.nerf()->resume(*start.loaded.nerf_model, ro.map_mode != MapMode::kLocalize);
 
-  // A saved map to start from (map_store.h): verified, and refused when made with another camera.
-  LoadedMap loaded;
-  if (ro.map) loaded = loadMapFolder(*ro.map, camera);
-  const std::size_t loaded_keyframes = loaded.map ? loaded.map->numKeyframes() : 0;
-  const std::size_t loaded_points = loaded.map ? loaded.map->numPoints() : 0;
-  SlamSystem slam(camera, sys, std::move(loaded.map), ro.map_mode);
-  if (loaded.nerf_model && slam.nerf()) slam.nerf()->resume(*loaded.nerf_model, ro.map_mode != MapMode::kLocalize);
-  BoundedQueue<InputFrame> frames(static_cast<std::size_t>(sys.frame_queue),
-                                  ro.realtime ? OverflowPolicy::kDropOldest : OverflowPolicy::kDropNewest);
-  std::atomic<std::size_t> processed{0};
-  std::atomic<std::size_t> frames_in{0};
-  std::atomic<std::size_t> out_of_order{0};
-  std::atomic<bool> abort_run{false};
-  std::mutex failure_mutex;
-  std::string read_failure;
-  std::string tracking_failure;
-  std::vector<std::string> image_problems(ds->size());
-  const bool lockstep = !ro.realtime && sys.lockstep;
-
-  // Reader.
-  // Memory and map size at the end of every 200-frame window (tracking_ms_windows), taken
-  // by the reader thread: the map counts take the map's lock, which the tracking thread never waits for.
-  struct WindowSample {
-    double rss_mb;
-    size_t keyframes, map_points;
-  };
-  std::vector<WindowSample> window_samples;
-  constexpr size_t kWindow = 200;
-  std::thread reader([&] {
-    setThreadName("nerfslam-read");
-    const auto wall0 = Clock::now();
-    double t_first = 0, last_ts = -std::numeric_limits<double>::infinity();
-    for (std::size_t i = 0; i < ds->size() && !abort_run; ++i) {
-      InputFrame f;
-      try {
-        // Colour for the NeRF (tracking converts to grey itself).
-        DatasetFrame df = ds->load(i, sys.nerf.enabled ? ImageMode::kColor : ImageMode::kGray);
-        f.index = i;
-        f.timestamp = df.timestamp;
-        f.image = std::move(df.image);
-      } catch (const std::exception& e) {
-        std::lock_guard<std::mutex> lock(failure_mutex);
-        read_failure = e.what();
-        spdlog::error("{}", e.what());
-        break;
-      }
-      if (!(f.timestamp > last_ts)) {
-        ++out_of_order;
-        spdlog::warn("frame {}: timestamp {:.6f} not after the previous {:.6f}; skipped", i, f.timestamp, last_ts);
-        continue;
-      }
-      last_ts = f.timestamp;
-      if (f.image.channels() == 1) {
-        image_problems[i] = describeImageProblem(f.image);
-      } else {
-        cv::Mat grey;
-        cv::cvtColor(f.image, grey, cv::COLOR_BGR2GRAY);
-        image_problems[i] = describeImageProblem(grey);
-      }
-      if (i == 0) t_first = f.timestamp;
-      if (ro.realtime) {
-        const auto due =
-            wall0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(f.timestamp - t_first));
-        std::this_thread::sleep_until(due);
-        frames.tryPush(std::move(f));  // drops the oldest waiting frame when tracking lags
-        ++frames_in;
-      } else {
-        if (!frames.push(std::move(f))) break;
-        ++frames_in;
-        if (lockstep) {
-          while (processed.load() < frames_in.load() && !abort_run)
-            std::this_thread::sleep_for(std::chrono::microseconds(200));
-          slam.waitMappingIdle();
-        }
-      }
-      if (frames_in.load() % kWindow == 0)
-        window_samples.push_back({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
-    }
-    frames.close();
-  });
-
-  // Tracking thread.
-  std::vector<double> tracking_ms, tracking_cpu_ms;
-  // The same CPU times split: frames before the map existed (initialisation attempts: KLT and the
-  // two-view models) and frames tracked against it.
-  std::vector<double> init_cpu_ms, after_init_cpu_ms;
-  // Per-stage CPU time of the frames tracked against the map (not the initialisation attempts).
-  std::map<std::string, std::vector<double>> stage_cpu_ms;
-  // The same for the initialisation attempts (median and max: there are few).
-  std::map<std::string, std::vector<double>> init_stage_cpu_ms;
+  // Reading and the system: the reader thread feeds the tracking thread.
+  FramePipe pipe(sys, ro, ds->size());
+  RunStats stats;
+  std::thread reader([&] { readFrames(*ds, slam, ro, sys, pipe, stats); });
   const auto run0 = Clock::now();
-  std::thread tracker([&] {
-    setThreadName("nerfslam-track");
-    auto last_print = Clock::now();
-    while (auto f = frames.pop()) {
-      try {
-        const bool had_map = slam.initialized();
-        const FrameRecord r = slam.trackFrame(f->image, f->timestamp, f->index);
-        tracking_ms.push_back(r.tracking_ms);
-        tracking_cpu_ms.push_back(r.tracking_cpu_ms);
-        (had_map ? after_init_cpu_ms : init_cpu_ms).push_back(r.tracking_cpu_ms);
-        if (!had_map) {
-          init_stage_cpu_ms["extract"].push_back(r.extract_cpu_ms);
-          init_stage_cpu_ms["klt"].push_back(r.init_klt_cpu_ms);
-          init_stage_cpu_ms["models"].push_back(r.init_models_cpu_ms);
-          // The frame that succeeds also builds the map: two-keyframe BA, the frames in between.
-          init_stage_cpu_ms["other"].push_back(r.tracking_cpu_ms - r.extract_cpu_ms - r.init_klt_cpu_ms -
-                                               r.init_models_cpu_ms);
-        }
-        if (r.track_cpu_ms > 0) {
-          stage_cpu_ms["extract"].push_back(r.extract_cpu_ms);
-          stage_cpu_ms["extract.pyramid"].push_back(r.extract_stages.pyramid_ms);
-          stage_cpu_ms["extract.fast"].push_back(r.extract_stages.fast_ms);
-          stage_cpu_ms["extract.descriptors"].push_back(r.extract_stages.descriptor_ms);
-          stage_cpu_ms["local_map"].push_back(r.local_map_cpu_ms);
-          stage_cpu_ms["track"].push_back(r.track_cpu_ms);
-          stage_cpu_ms["relocalize"].push_back(r.relocalize_cpu_ms);
-          stage_cpu_ms["other"].push_back(r.tracking_cpu_ms - r.extract_cpu_ms - r.local_map_cpu_ms - r.track_cpu_ms -
-                                          r.relocalize_cpu_ms);
-        }
-      } catch (const std::exception& e) {
-        std::lock_guard<std::mutex> lock(failure_mutex);
-        tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
-        spdlog::error("{}", tracking_failure);
-        abort_run = true;
-        ++processed;
-        frames.close();
-        break;
-      }
-      ++processed;
-      if (ro.progress && (Clock::now() - last_print > std::chrono::seconds(1))) {
-        last_print = Clock::now();
-        const double secs = std::chrono::duration<double>(Clock::now() - run0).count();
-        std::string nerf_line;
-        if (const NerfMapping* n = slam.nerf()) {
-          const NerfMappingStats ns = n->stats();
-          nerf_line = fmt::format("  | NeRF {} views, {} steps, {:.1f} steps/s, {:.2f} M samples/s, PSNR {:.1f} dB",
-                                  ns.views, ns.steps, ns.steps_per_second, ns.samples_per_second / 1e6, ns.psnr_recent);
-        }
-        std::fprintf(stderr, "frame %zu/%zu  %.1f frames/s  keyframes %zu  map points %zu  %s%s\n", f->index + 1,
-                     ds->size(), processed.load() / std::max(secs, 1e-9), slam.map().numKeyframes(),
-                     slam.map().numPoints(), toString(slam.state()), nerf_line.c_str());
-      }
-    }
-  });
+  std::thread tracker([&] { trackFrames(slam, ro, ds->size(), run0, pipe, stats); });
   reader.join();
   tracker.join();
   const double wall_s = std::chrono::duration<double>(Clock::now() - run0).count();
   slam.finish(true);
-  if (NerfMapping* n = slam.nerf(); n && n->hasModel() && sys.nerf.final_train_seconds > 0) {
-    std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n",
-                 sys.nerf.final_train_seconds);
-    const int threads = resolveThreads(sys.nerf.final_threads);
-    n->trainFor(sys.nerf.final_train_seconds, 0, threads);
-  }
+  trainNerfFinal(slam, sys);
 
   // Outputs.
   const Trajectory traj = slam.trajectory();
-  const auto& records = slam.records();
-  nlohmann::json rep;
-  rep["dataset"] = ds->root().string();
-  rep["dataset_kind"] = ds->kind();
-  rep["frames"] = ds->size();
-  rep["frames_processed"] = processed.load();
-  rep["frames_dropped"] = ro.realtime ? frames.dropped() : 0;
-  rep["frames_out_of_order"] = out_of_order.load();
-  rep["frames_tracked"] = traj.size();
-  rep["initialized"] = slam.initialized();
-  rep["initializations"] = slam.initializationCount();
-  rep["initialization_model"] = slam.initializationModel();
-  rep["relocalizations"] = slam.relocalizations();
-  rep["local_map_rebuilds"] = slam.localMapRebuilds();
-  rep["mode"] = toString(slam.mapMode());
-  rep["map_loaded"] = ro.map ? nlohmann::json(ro.map->string()) : nlohmann::json(nullptr);
-  rep["relocalized_at_frame"] = slam.relocalizedAtFrame();
-  if (ro.map) {
-    rep["map_loaded_keyframes"] = loaded_keyframes;
-    rep["map_loaded_points"] = loaded_points;
-    rep["map_load_s"] = loaded.seconds;
-  }
-  rep["keyframes"] = slam.map().numKeyframes();
-  rep["keyframes_dropped"] = slam.droppedKeyframes();
-  rep["map_points"] = slam.map().numPoints();
-  rep["realtime"] = ro.realtime;
-  rep["wall_time_s"] = wall_s;
-  rep["peak_rss_mb"] = peakRssMb();
-  rep["frames_per_second"] = processed.load() / std::max(wall_s, 1e-9);
-  rep["tracking_ms_median"] = percentile(tracking_ms, 0.5);
-  rep["tracking_ms_p99"] = percentile(tracking_ms, 0.99);
-  rep["tracking_cpu_ms_median"] = percentile(tracking_cpu_ms, 0.5);
-  rep["tracking_cpu_ms_p99"] = percentile(tracking_cpu_ms, 0.99);
-  rep["tracking_cpu_ms_after_init_median"] = percentile(after_init_cpu_ms, 0.5);
-  rep["tracking_cpu_ms_after_init_p99"] = percentile(after_init_cpu_ms, 0.99);
-  rep["initialization_frames"] = init_cpu_ms.size();
-  rep["initialization_cpu_ms_median"] = percentile(init_cpu_ms, 0.5);
-  rep["initialization_cpu_ms_max"] = percentile(init_cpu_ms, 1.0);
-  for (const auto& [stage, v] : init_stage_cpu_ms)
-    rep["initialization_stage_cpu_ms"][stage] = {{"median", percentile(v, 0.5)}, {"max", percentile(v, 1.0)}};
-  for (const auto& [stage, v] : stage_cpu_ms) {
-    rep["tracking_stage_cpu_ms"][stage] = {{"median", percentile(v, 0.5)}, {"p99", percentile(v, 0.99)}};
-    spdlog::info("tracking stage {:<19} CPU median {:6.2f} ms, p99 {:6.2f} ms ({} frames)", stage, percentile(v, 0.5),
-                 percentile(v, 0.99), v.size());
-  }
-  // Does the cost per frame grow with the map? Tracking CPU time (the tracking thread's own, not
-  // inflated by the other threads) per window of 200 frames, with the process's resident memory and
-  // the map's size at the window's end (full windows only).
-  {
-    nlohmann::json windows = nlohmann::json::array();
-    // Windows of 200 frames from the first; a last window shorter than 100 frames is left out
-    // (unless it is the only one).
-    for (size_t b = 0; b < tracking_cpu_ms.size() && (b == 0 || b + kWindow / 2 <= tracking_cpu_ms.size());
-         b += kWindow) {
-      const size_t e = std::min(b + kWindow, tracking_cpu_ms.size());
-      const std::vector<double> cpu(tracking_cpu_ms.begin() + long(b), tracking_cpu_ms.begin() + long(e));
-      const std::vector<double> wall(tracking_ms.begin() + long(b), tracking_ms.begin() + long(e));
-      windows.push_back({{"first_frame", b},
-                         {"frames", e - b},
-                         {"cpu_ms_median", percentile(cpu, 0.5)},
-                         {"cpu_ms_p99", percentile(cpu, 0.99)},
-                         {"wall_ms_median", percentile(wall, 0.5)},
-                         {"wall_ms_p99", percentile(wall, 0.99)}});
-      if (const size_t w = b / kWindow; e - b == kWindow && w < window_samples.size()) {
-        windows.back()["rss_mb"] = window_samples[w].rss_mb;
-        windows.back()["keyframes"] = window_samples[w].keyframes;
-        windows.back()["map_points"] = window_samples[w].map_points;
-      }
-    }
-    rep["tracking_ms_windows"] = windows;
-  }
-  rep["nerf"] = slam.nerf() != nullptr;
-  if (slam.nerf()) rep["tracking_ms_median_with_nerf"] = percentile(tracking_ms, 0.5);
-  std::vector<double> ba_ms, map_ms;
-  for (const auto& s : slam.mapping().stats()) {
-    ba_ms.push_back(s.ba_ms);
-    map_ms.push_back(s.total_ms);
-  }
-  rep["ba_ms_median"] = percentile(ba_ms, 0.5);
-  rep["ba_ms_max"] = ba_ms.empty() ? 0.0 : *std::max_element(ba_ms.begin(), ba_ms.end());
-  rep["mapping_ms_median"] = percentile(map_ms, 0.5);
-  int first_tracked = -1;
-  for (const auto& r : records)
-    if (r.tracked) {
-      first_tracked = static_cast<int>(r.index);
-      break;
-    }
-  rep["first_tracked_frame"] = first_tracked;
-  // Frames after the first tracked one that were not tracked.
-  std::size_t untracked_after = 0;
-  if (first_tracked >= 0)
-    for (const auto& r : records) untracked_after += (static_cast<int>(r.index) > first_tracked && !r.tracked);
-  rep["frames_lost_after_init"] = untracked_after;
-
-  std::string failure;
-  if (!read_failure.empty()) failure = read_failure;
-  if (!tracking_failure.empty()) failure = tracking_failure;
-  if (failure.empty() && !slam.initialized()) {
-    std::size_t black = 0, saturated = 0, uniform = 0;
-    for (const auto& p : image_problems) {
-      black += p == "black";
-      saturated += p == "saturated";
-      uniform += p == "uniform";
-    }
-    failure = fmt::format("not initialised after {} frames", processed.load());
-    if (black + saturated + uniform > 0)
-      failure += fmt::format(" ({} black, {} saturated, {} featureless frames)", black, saturated, uniform);
-    if (!slam.lastInitMessage().empty()) failure += "; last attempt: " + slam.lastInitMessage();
-  }
+  nlohmann::json rep = runReport(*ds, ro, slam, pipe, start, traj.size(), wall_s);
+  stats.setMapping(slam.mapping().stats());
+  stats.writeReport(rep, slam.nerf() != nullptr);
+  addTrackingContinuity(slam.records(), rep);
+  const std::string failure = runFailure(pipe, slam);
   if (!failure.empty()) rep["failure"] = failure;
-
-  Trajectory ref;
-  std::optional<Sim3> gt_alignment;
-  if (ds->hasGroundTruth() && traj.size() >= 3) {
-    for (std::size_t i = 0; i < ds->size(); ++i)
-      if (auto gt = ds->groundTruth(i)) ref.push_back({ds->timestamp(i), *gt});
-    try {
-      eval::TrajectoryEvalOptions eo;
-      eo.align = "sim3";
-      eo.max_dt = 1e-3;
-      const eval::TrajectoryReport tr = eval::evaluateTrajectory(ref, traj, eo);
-      gt_alignment = tr.alignment;
-      rep["ate_rmse_m"] = tr.ape.rmse;
-      rep["ate_max_m"] = tr.ape.max;
-      rep["ate_scale"] = tr.scale;
-      rep["ate_matched"] = tr.matched;
-      rep["rpe_trans"] = tr.has_rpe ? tr.rpe_translation.rmse : 0.0;
-      rep["rpe_rot_deg"] = tr.has_rpe ? tr.rpe_rotation_deg.rmse : 0.0;
-      rep["path_length_m"] = tr.ref_path_length;
-      rep["ate_percent_of_path"] = tr.ape_rmse_percent;
-      // Scene extent (largest distance between ground-truth centres) for multi-view sets.
-      double extent = 0;
-      for (std::size_t a = 0; a < ref.size(); ++a)
-        for (std::size_t b = a + 1; b < ref.size(); ++b)
-          extent = std::max(extent, (ref[a].pose.translation() - ref[b].pose.translation()).norm());
-      rep["gt_extent_m"] = extent;
-      rep["ate_max_percent_of_extent"] = extent > 0 ? 100.0 * tr.ape.max / extent : 0.0;
-    } catch (const std::exception& e) {
-      rep["eval_error"] = e.what();
-    }
-  }
-
-  writeTumTrajectory(ro.out / "trajectory.txt", traj);
-  writeTumTrajectory(ro.out / "keyframes.txt", slam.keyframeTrajectory());
-  writeMapPly(ro.out / "map_points.ply", slam.map());
-  render::PreviewCloud dense;
-  if (slam.nerf()) {
-    try {
-      writeNerfOutputs(slam, *ds, traj, gt_alignment, ro.out, NerfEvalOptions{}, rep, &dense);
-    } catch (const std::exception& e) {
-      rep["nerf_error"] = e.what();
-      spdlog::error("NeRF outputs: {}", e.what());
-    }
-  }
-  writeRunPreviews(slam, traj, ref, gt_alignment, dense, ro.out);
-  // The map folder (map_store.h): --save-map DIR, else OUT/map (not after --localize: the map is as loaded).
-  bool map_save_failed = false;
-  std::optional<std::filesystem::path> map_dir = ro.save_map;
-  if (!map_dir && ro.save_default_map && ro.map_mode != MapMode::kLocalize) map_dir = ro.out / "map";
-  if (map_dir && slam.map().numKeyframes() > 0) {
-    // The NeRF model goes into the map folder too (written under the model lock).
-    NerfModelWriter write_nerf_model;
-    if (NerfMapping* n = slam.nerf(); n && n->hasModel())
-      write_nerf_model = [n](const std::filesystem::path& p) {
-        n->withModel([&](nerf::NerfModel& m) { nerf::saveModel(m, p); });
-      };
-    try {
-      const MapSaveResult ms = saveMapFolder(*map_dir, slam.map(), camera, sys, write_nerf_model);
-      rep["map_saved"] = map_dir->string();
-      rep["map_save_s"] = ms.seconds;
-      rep["map_bytes"] = ms.bytes;
-    } catch (const std::exception& e) {
-      rep["map_save_error"] = e.what();
-      spdlog::error("saving the map: {}", e.what());
-      map_save_failed = ro.save_map.has_value();
-    }
-  }
+  const GroundTruthEval ge = evaluateAgainstGroundTruth(*ds, traj, rep);
+  writeRunFiles(slam, *ds, traj, ge, ro.out, rep);
+  const bool map_save_failed = saveRunMap(slam, ro, camera, sys, rep);
   writeStringAtomic(ro.out / "report.json", rep.dump(2) + "\n");
+  printSummary(slam, *ds, traj, rep, failure, pipe.processed.load() / std::max(wall_s, 1e-9), ro.out);
 
-  std::fprintf(stderr, "done: %zu/%zu frames tracked, %zu keyframes, %zu map points, %.1f frames/s%s\n", traj.size(),
-               ds->size(), slam.map().numKeyframes(), slam.map().numPoints(), processed.load() / std::max(wall_s, 1e-9),
-               failure.empty() ? "" : (" — " + failure).c_str());
-  if (rep.contains("ate_rmse_m"))
-    std::fprintf(stderr, "ATE (Sim3) %.4f m = %.3f%% of %.1f m path, scale %.4f\n", rep["ate_rmse_m"].get<double>(),
-                 rep["ate_percent_of_path"].get<double>(), rep["path_length_m"].get<double>(),
-                 rep["ate_scale"].get<double>());
-  if (rep.contains("nerf_psnr_heldout"))
-    std::fprintf(stderr, "NeRF: %lld steps, held-out PSNR %.2f dB (%zu frames), keyframes %.2f dB%s\n",
-                 static_cast<long long>(rep["nerf_steps"].get<int64_t>()), rep["nerf_psnr_heldout"].get<double>(),
-                 rep["nerf_psnr_heldout_frames"].get<size_t>(), rep["nerf_psnr_keyframes"].get<double>(),
-                 rep.contains("nerf_depth_median_abs_rel")
-                     ? fmt::format(", depth error (median abs rel) {:.1f}%",
-                                   100 * rep["nerf_depth_median_abs_rel"].get<double>())
-                           .c_str()
-                     : "");
-  std::fprintf(stderr, "results in %s (report.json, trajectory.txt, map_preview.png%s)\n", ro.out.string().c_str(),
-               slam.nerf() ? ", nerf/, nerf_cloud.ply, mesh.ply" : "");
   RunResult res;
   res.report = rep;
   res.initialized = slam.initialized();
-  res.exit_code = (!read_failure.empty() || !tracking_failure.empty() || map_save_failed) ? 1 : 0;
+  res.exit_code = (!pipe.read_failure.empty() || !pipe.tracking_failure.empty() || map_save_failed) ? 1 : 0;
   return res;
 }
 

@@ -2,7 +2,9 @@
 // `nerfslam run`: plays a dataset through SlamSystem with three threads — a reader (decodes images,
 // paces them at their timestamps with --realtime), the tracking thread, and the mapping thread — and
 // writes trajectory.txt (TUM, every tracked frame), keyframes.txt (TUM), map_points.ply and
-// report.json into the output directory, all atomically.
+// report.json into the output directory, all atomically. runSlam reads as its three parts: reading
+// (the reader thread and its queue), the system (tracking; mapping and the NeRF on SlamSystem's
+// threads), outputs (files, report.json: the timing fields come from RunStats, system/run_stats.h).
 #include <cstddef>
 #include <filesystem>
 #include <functional>
@@ -25,7 +27,7 @@ struct RunOptions {
   std::filesystem::path out;
   std::size_t max_frames = 0;  // 0: all
   bool realtime = false;
-  bool nerf = true;  // false: SystemOptions::nerf.enabled = false (--no-nerf)
+  bool nerf = true;                     // false: SystemOptions::nerf.enabled = false (--no-nerf)
   bool progress = true;                 // progress line on stderr
   std::optional<SystemOptions> system;  // used instead of defaults + config when set (tests)
   // Saved maps (system/map_store.h). `map`: start from this map folder in `map_mode` (kLocalize or
