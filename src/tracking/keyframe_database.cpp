@@ -1,0 +1,158 @@
+#include "nerfslam/tracking/keyframe_database.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include "binary_blob.h"
+#include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/error.h"
+
+namespace nerfslam {
+namespace {
+constexpr std::string_view kMagic("NSKFDB\0\0", 8);
+}
+
+void KeyframeDatabase::add(uint64_t keyframe, const BowVector& bow) {
+  for (const auto& [w, x] : bow)
+    if (w >= word_count_)
+      fail("KeyframeDatabase::add: keyframe {} has word {}, the vocabulary has {} words", keyframe, w, word_count_);
+  erase(keyframe);
+  for (const auto& [w, x] : bow) postings_[w].push_back({keyframe, x});
+  posting_count_ += bow.size();
+  bows_.emplace(keyframe, bow);
+}
+
+bool KeyframeDatabase::erase(uint64_t keyframe) {
+  const auto it = bows_.find(keyframe);
+  if (it == bows_.end()) return false;
+  for (const auto& [w, x] : it->second) {
+    const auto l = postings_.find(w);
+    if (l == postings_.end()) continue;
+    auto& list = l->second;
+    const auto p = std::find_if(list.begin(), list.end(), [&](const Posting& e) { return e.keyframe == keyframe; });
+    if (p != list.end()) {
+      *p = list.back();  // order within a list does not matter
+      list.pop_back();
+      --posting_count_;
+    }
+    if (list.empty()) postings_.erase(l);
+  }
+  bows_.erase(it);
+  return true;
+}
+
+void KeyframeDatabase::clear() {
+  postings_.clear();
+  bows_.clear();
+  posting_count_ = 0;
+}
+
+const BowVector* KeyframeDatabase::bow(uint64_t keyframe) const {
+  const auto it = bows_.find(keyframe);
+  return it == bows_.end() ? nullptr : &it->second;
+}
+
+std::vector<PlaceCandidate> KeyframeDatabase::query(const BowVector& bow, const PlaceQuery& q) const {
+  scratch_.clear();
+  for (const auto& [w, x] : bow) {
+    const auto l = postings_.find(w);
+    if (l == postings_.end()) continue;
+    for (const Posting& p : l->second) {
+      auto& acc = scratch_[p.keyframe];
+      acc.first += std::min(x, p.weight);
+      ++acc.second;
+    }
+  }
+  std::vector<PlaceCandidate> out;
+  out.reserve(scratch_.size());
+  for (const auto& [kf, acc] : scratch_) {
+    if (acc.second < q.min_shared_words || acc.first < q.min_score) continue;
+    if (q.exclude && q.exclude(kf)) continue;
+    out.push_back({kf, std::clamp(double(acc.first), 0.0, 1.0), acc.second});
+  }
+  auto better = [](const PlaceCandidate& a, const PlaceCandidate& b) {
+    return a.score != b.score ? a.score > b.score : a.keyframe < b.keyframe;
+  };
+  if (q.max_results > 0 && out.size() > q.max_results) {
+    std::partial_sort(out.begin(), out.begin() + std::ptrdiff_t(q.max_results), out.end(), better);
+    out.resize(q.max_results);
+  } else {
+    std::sort(out.begin(), out.end(), better);
+  }
+  return out;
+}
+
+std::string KeyframeDatabase::serialize() const {
+  std::vector<uint64_t> ids;
+  ids.reserve(bows_.size());
+  for (const auto& [id, b] : bows_) ids.push_back(id);
+  std::sort(ids.begin(), ids.end());
+  blob::Writer w;
+  w.bytes(kMagic.data(), kMagic.size());
+  w.u32(kBlobVersion);
+  w.u32(uint32_t(word_count_));
+  w.u32(uint32_t(ids.size()));
+  for (uint64_t id : ids) {
+    const BowVector& b = bows_.at(id);
+    w.u64(id);
+    w.u32(uint32_t(b.size()));
+    for (const auto& [word, x] : b) {
+      w.u32(word);
+      w.f32(x);
+    }
+  }
+  return w.finish();
+}
+
+KeyframeDatabase KeyframeDatabase::deserialize(std::string_view bytes, const std::string& name,
+                                               size_t expected_word_count) {
+  blob::Reader r(bytes, name, kMagic);
+  const uint32_t version = r.u32("version");
+  if (version != kBlobVersion)
+    throw fieldError(name, "version",
+                     fmt::format("keyframe database version {}, this build reads version {}", version, kBlobVersion));
+  r.checkCrc();
+  const uint32_t words = r.u32("word_count");
+  if (expected_word_count > 0 && words != expected_word_count)
+    throw fieldError(
+        name, "word_count",
+        fmt::format("built for a vocabulary of {} words, the loaded vocabulary has {}", words, expected_word_count));
+  const uint32_t n = r.count("keyframe_count", 12);
+  KeyframeDatabase db(words);
+  for (uint32_t i = 0; i < n; ++i) {
+    const std::string field = fmt::format("keyframes[{}]", i);
+    const uint64_t id = r.u64(field + ".id");
+    if (db.contains(id)) throw fieldError(name, field + ".id", fmt::format("keyframe {} appears twice", id));
+    const uint32_t m = r.count(field + ".entry_count", 8);
+    BowVector b(m);
+    for (uint32_t e = 0; e < m; ++e) {
+      b[e].first = r.u32(field + ".word");
+      b[e].second = r.f32(field + ".weight");
+      if (b[e].first >= words || (e > 0 && b[e].first <= b[e - 1].first))
+        throw fieldError(name, field + ".word", "words must be increasing and within the vocabulary");
+      if (!std::isfinite(b[e].second) || b[e].second <= 0 || b[e].second > 1)
+        throw fieldError(name, field + ".weight", "must be in (0, 1]");
+    }
+    db.add(id, b);
+  }
+  r.expectEnd();
+  return db;
+}
+
+void saveKeyframeDatabase(const KeyframeDatabase& db, const std::filesystem::path& path) {
+  writeStringAtomic(path, db.serialize());
+}
+
+KeyframeDatabase loadKeyframeDatabase(const std::filesystem::path& path, size_t expected_word_count) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) fail("{}: keyframe database file not found", path.string());
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  if (!in && !in.eof()) fail("{}: read error", path.string());
+  return KeyframeDatabase::deserialize(s.str(), path.string(), expected_word_count);
+}
+
+}  // namespace nerfslam
