@@ -22,6 +22,8 @@ TEST(KeyframeDatabase, QueryScoresAreTheL1Score) {
   db.add(30, c);
   EXPECT_EQ(db.size(), 3u);
   EXPECT_EQ(db.postingCount(), 7u);
+  EXPECT_EQ(db.postingCount(9), 2u);
+  EXPECT_EQ(db.postingCount(3), 0u);
   const auto r = db.query(q);
   ASSERT_EQ(r.size(), 2u);  // keyframe 30 shares no word
   EXPECT_EQ(r[0].keyframe, 20u);

@@ -57,8 +57,13 @@ class KeyframeDatabase {
   size_t wordCount() const { return word_count_; }
   // The stored bag of a keyframe (nullptr if absent).
   const BowVector* bow(uint64_t keyframe) const;
-  // Total postings (entries over all words).
+  // Total postings (entries over all words), and the postings of one word (the keyframes having
+  // it: what a query containing it walks).
   size_t postingCount() const { return posting_count_; }
+  size_t postingCount(WordId w) const {
+    const auto it = postings_.find(w);
+    return it == postings_.end() ? 0 : it->second.size();
+  }
 
   // Keyframes sharing words with `bow`, best score first (ties: lower id first).
   std::vector<PlaceCandidate> query(const BowVector& bow, const PlaceQuery& q = {}) const;
