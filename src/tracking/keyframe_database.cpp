@@ -19,19 +19,29 @@ void KeyframeDatabase::add(uint64_t keyframe, const BowVector& bow) {
     if (w >= word_count_)
       fail("KeyframeDatabase::add: keyframe {} has word {}, the vocabulary has {} words", keyframe, w, word_count_);
   erase(keyframe);
-  for (const auto& [w, x] : bow) postings_[w].push_back({keyframe, x});
+  uint32_t slot;
+  if (!free_slots_.empty()) {
+    slot = free_slots_.back();
+    free_slots_.pop_back();
+  } else {
+    slot = uint32_t(slots_.size());
+    slots_.emplace_back();
+  }
+  slots_[slot] = {keyframe, bow};
+  slot_of_.emplace(keyframe, slot);
+  for (const auto& [w, x] : bow) postings_[w].push_back({slot, x});
   posting_count_ += bow.size();
-  bows_.emplace(keyframe, bow);
 }
 
 bool KeyframeDatabase::erase(uint64_t keyframe) {
-  const auto it = bows_.find(keyframe);
-  if (it == bows_.end()) return false;
-  for (const auto& [w, x] : it->second) {
+  const auto it = slot_of_.find(keyframe);
+  if (it == slot_of_.end()) return false;
+  const uint32_t slot = it->second;
+  for (const auto& [w, x] : slots_[slot].bow) {
     const auto l = postings_.find(w);
     if (l == postings_.end()) continue;
     auto& list = l->second;
-    const auto p = std::find_if(list.begin(), list.end(), [&](const Posting& e) { return e.keyframe == keyframe; });
+    const auto p = std::find_if(list.begin(), list.end(), [&](const Posting& e) { return e.slot == slot; });
     if (p != list.end()) {
       *p = list.back();  // order within a list does not matter
       list.pop_back();
@@ -39,39 +49,58 @@ bool KeyframeDatabase::erase(uint64_t keyframe) {
     }
     if (list.empty()) postings_.erase(l);
   }
-  bows_.erase(it);
+  slots_[slot] = {};
+  free_slots_.push_back(slot);
+  slot_of_.erase(it);
   return true;
 }
 
 void KeyframeDatabase::clear() {
   postings_.clear();
-  bows_.clear();
+  slots_.clear();
+  free_slots_.clear();
+  slot_of_.clear();
   posting_count_ = 0;
 }
 
 const BowVector* KeyframeDatabase::bow(uint64_t keyframe) const {
-  const auto it = bows_.find(keyframe);
-  return it == bows_.end() ? nullptr : &it->second;
+  const auto it = slot_of_.find(keyframe);
+  return it == slot_of_.end() ? nullptr : &slots_[it->second].bow;
 }
 
 std::vector<PlaceCandidate> KeyframeDatabase::query(const BowVector& bow, const PlaceQuery& q) const {
-  scratch_.clear();
+  // Per-thread accumulators indexed by slot; entries are zero except during a query, which resets
+  // the ones it touched. They grow with the largest database queried on this thread.
+  struct Scratch {
+    std::vector<float> score;
+    std::vector<int> shared;
+    std::vector<uint32_t> touched;
+  };
+  thread_local Scratch acc;
+  if (acc.score.size() < slots_.size()) {
+    acc.score.resize(slots_.size(), 0.0f);
+    acc.shared.resize(slots_.size(), 0);
+  }
+  acc.touched.clear();
   for (const auto& [w, x] : bow) {
     const auto l = postings_.find(w);
     if (l == postings_.end()) continue;
     for (const Posting& p : l->second) {
-      auto& acc = scratch_[p.keyframe];
-      acc.first += std::min(x, p.weight);
-      ++acc.second;
+      if (acc.shared[p.slot]++ == 0) acc.touched.push_back(p.slot);
+      acc.score[p.slot] += std::min(x, p.weight);
     }
   }
   std::vector<PlaceCandidate> out;
-  out.reserve(scratch_.size());
-  for (const auto& [kf, acc] : scratch_) {
-    if (acc.second < q.min_shared_words || acc.first < q.min_score) continue;
-    if (q.exclude && q.exclude(kf)) continue;
-    out.push_back({kf, std::clamp(double(acc.first), 0.0, 1.0), acc.second});
+  for (uint32_t slot : acc.touched) {
+    if (acc.shared[slot] >= q.min_shared_words && acc.score[slot] >= q.min_score)
+      out.push_back({slots_[slot].keyframe, std::clamp(double(acc.score[slot]), 0.0, 1.0), acc.shared[slot]});
+    acc.score[slot] = 0.0f;
+    acc.shared[slot] = 0;
   }
+  // After the reset: the callback may itself query.
+  if (q.exclude)
+    out.erase(std::remove_if(out.begin(), out.end(), [&](const PlaceCandidate& c) { return q.exclude(c.keyframe); }),
+              out.end());
   auto better = [](const PlaceCandidate& a, const PlaceCandidate& b) {
     return a.score != b.score ? a.score > b.score : a.keyframe < b.keyframe;
   };
@@ -86,8 +115,8 @@ std::vector<PlaceCandidate> KeyframeDatabase::query(const BowVector& bow, const 
 
 std::string KeyframeDatabase::serialize() const {
   std::vector<uint64_t> ids;
-  ids.reserve(bows_.size());
-  for (const auto& [id, b] : bows_) ids.push_back(id);
+  ids.reserve(slot_of_.size());
+  for (const auto& [id, slot] : slot_of_) ids.push_back(id);
   std::sort(ids.begin(), ids.end());
   blob::Writer w;
   w.bytes(kMagic.data(), kMagic.size());
@@ -95,7 +124,7 @@ std::string KeyframeDatabase::serialize() const {
   w.u32(uint32_t(word_count_));
   w.u32(uint32_t(ids.size()));
   for (uint64_t id : ids) {
-    const BowVector& b = bows_.at(id);
+    const BowVector& b = slots_[slot_of_.at(id)].bow;
     w.u64(id);
     w.u32(uint32_t(b.size()));
     for (const auto& [word, x] : b) {

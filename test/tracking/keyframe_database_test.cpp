@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <random>
+#include <thread>
 
 #include <opencv2/imgcodecs.hpp>
 
@@ -70,6 +72,50 @@ TEST(KeyframeDatabase, AddReplacesAndEraseRemoves) {
   db.clear();
   EXPECT_EQ(db.size(), 0u);
   EXPECT_EQ(db.postingCount(), 0u);
+}
+
+BowVector randomBow(std::mt19937& rng, size_t words, int n) {
+  std::map<WordId, float> m;
+  for (int i = 0; i < n; ++i) m[WordId(rng() % words)] += 1.0f;
+  BowVector b(m.begin(), m.end());
+  float total = 0;
+  for (const auto& e : b) total += e.second;
+  for (auto& e : b) e.second /= total;
+  return b;
+}
+
+TEST(KeyframeDatabase, ConcurrentQueriesAgreeWithSequentialOnes) {
+  std::mt19937 rng(4);
+  KeyframeDatabase db(500);
+  for (uint64_t k = 0; k < 300; ++k) db.add(k * 7, randomBow(rng, 500, 60));
+  for (uint64_t k = 0; k < 300; k += 3) db.erase(k * 7);  // slots freed and reused
+  for (uint64_t k = 300; k < 350; ++k) db.add(k * 7, randomBow(rng, 500, 60));
+  std::vector<BowVector> queries;
+  for (int i = 0; i < 40; ++i) queries.push_back(randomBow(rng, 500, 60));
+  PlaceQuery all;
+  all.max_results = 0;
+  std::vector<std::vector<PlaceCandidate>> expected;
+  for (const auto& q : queries) {
+    expected.push_back(db.query(q, all));
+    // Scores are the L1 scores with the stored bags.
+    for (const auto& c : expected.back()) EXPECT_NEAR(c.score, Vocabulary::score(q, *db.bow(c.keyframe)), 1e-5);
+  }
+  std::vector<int> mismatches(2, 0);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 2; ++t)
+    threads.emplace_back([&, t] {
+      for (int rep = 0; rep < 20; ++rep)
+        for (size_t i = 0; i < queries.size(); ++i) {
+          const auto r = db.query(queries[i], all);
+          bool same = r.size() == expected[i].size();
+          for (size_t j = 0; same && j < r.size(); ++j)
+            same = r[j].keyframe == expected[i][j].keyframe && r[j].score == expected[i][j].score;
+          mismatches[size_t(t)] += same ? 0 : 1;
+        }
+    });
+  for (auto& th : threads) th.join();
+  EXPECT_EQ(mismatches[0] + mismatches[1], 0);
+  EXPECT_EQ(db.size(), 250u);
 }
 
 TEST(KeyframeDatabase, BlobRoundTripAndBadBlobs) {

@@ -4,15 +4,17 @@
 // there.
 //
 // A query walks only the posting lists of its own words and accumulates, per keyframe met, the
-// DBoW2 L1 score sum_w min(q_w, k_w) (= 1 - |q - k|_1 / 2 for L1-normalised bags): its cost is
-// the number of postings under the query's words, never the number of keyframes. Keyframes that
-// share no word with the query are never touched.
+// DBoW2 L1 score sum_w min(q_w, k_w) (= 1 - |q - k|_1 / 2 for L1-normalised bags) in a dense
+// per-thread array indexed by the keyframe's slot, resetting only the entries it touched: its cost
+// is the number of postings under the query's words, never the number of keyframes. Keyframes
+// that share no word with the query are never touched.
 //
 // Blob format (serialize / deserialize, for map folders), little-endian:
 //   magic "NSKFDB\0\0" (8 bytes), u32 version (1), u32 word count of the vocabulary,
 //   u32 keyframe count, then per keyframe (ascending id): u64 id, u32 entry count, entries
 //   {u32 word, f32 weight}; u32 CRC-32 of every byte before it.
-// The database is not thread-safe: its owner serialises add/erase/query.
+// Threads: query() may run on several threads at once (its scratch is per thread); add, erase
+// and clear need exclusive access (the owner holds a shared_mutex, queries taking it shared).
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -52,8 +54,8 @@ class KeyframeDatabase {
   // Removes a keyframe; false if it was not there. Cost: the postings of its words.
   bool erase(uint64_t keyframe);
   void clear();
-  bool contains(uint64_t keyframe) const { return bows_.count(keyframe) > 0; }
-  size_t size() const { return bows_.size(); }
+  bool contains(uint64_t keyframe) const { return slot_of_.count(keyframe) > 0; }
+  size_t size() const { return slot_of_.size(); }
   size_t wordCount() const { return word_count_; }
   // The stored bag of a keyframe (nullptr if absent).
   const BowVector* bow(uint64_t keyframe) const;
@@ -75,16 +77,20 @@ class KeyframeDatabase {
 
  private:
   struct Posting {
-    uint64_t keyframe;
+    uint32_t slot;
     float weight;
+  };
+  struct Slot {
+    uint64_t keyframe = 0;
+    BowVector bow;
   };
   size_t word_count_ = 0;
   // Per word that some keyframe has (a hash map: memory follows the content, not the vocabulary).
   std::unordered_map<WordId, std::vector<Posting>> postings_;
-  std::unordered_map<uint64_t, BowVector> bows_;  // per keyframe
+  std::vector<Slot> slots_;  // dense; erased slots are reused
+  std::vector<uint32_t> free_slots_;
+  std::unordered_map<uint64_t, uint32_t> slot_of_;  // keyframe id -> slot
   size_t posting_count_ = 0;
-  // Scratch of query(): reused so a query allocates nothing once warmed up.
-  mutable std::unordered_map<uint64_t, std::pair<float, int>> scratch_;
 };
 
 // Atomic write / checked read of the blob as a file.
