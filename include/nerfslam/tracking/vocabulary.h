@@ -77,9 +77,12 @@ class Vocabulary {
   const uint8_t* nodeDescriptor(NodeId n) const { return descriptors_.data() + size_t(n) * 32; }
 
   // Bag of words of an image's descriptors (rows of 32 bytes); with `direct`, also its direct
-  // index at depth `direct_level` (see word()).
+  // index at depth `direct_level` (see word()). With the shipped k = 12 tree, matching through
+  // level 1 (matchByDirectIndex, bow_matcher.h) kept 170 of the 210 sound matches an exhaustive
+  // search finds between KITTI 06 frames 0 and 1, for about a twelfth of the comparisons; level 2
+  // kept 118.
   void transform(const cv::Mat& descriptors, BowVector* bow, FeatureVector* direct = nullptr,
-                 int direct_level = 2) const;
+                 int direct_level = 1) const;
 
   // DBoW2's L1 score of two bags of words: 1 - |a - b|_1 / 2, in [0, 1].
   static double score(const BowVector& a, const BowVector& b);
