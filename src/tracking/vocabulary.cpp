@@ -13,6 +13,7 @@
 #include "binary_blob.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/tracking/frame.h"
 
 namespace nerfslam {
 namespace {
@@ -22,16 +23,8 @@ constexpr std::string_view kMagic("NSVOCAB\0", 8);
 constexpr size_t kHeaderBytes = 8 + 6 * 4;
 constexpr size_t kNodeBytes = 4 + kBytes;
 
-inline int hamming(const uint8_t* a, const uint8_t* b) {
-  int d = 0;
-  for (size_t i = 0; i < kBytes; i += 8) {
-    uint64_t x, y;
-    std::memcpy(&x, a + i, 8);
-    std::memcpy(&y, b + i, 8);
-    d += __builtin_popcountll(x ^ y);
-  }
-  return d;
-}
+// Hamming distance with the tracker's popcount (runtime-dispatched POPCNT, frame.h).
+inline int hamming(const uint8_t* a, const uint8_t* b) { return descriptorDistance(a, b); }
 
 using Centre = std::array<uint8_t, kBytes>;
 struct Cluster {

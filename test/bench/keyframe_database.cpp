@@ -3,7 +3,8 @@
 // image sequences (KITTI 06, New Tsukuba, EuRoC, the temple ring, the fountain) with the shipped
 // vocabulary, keyframe n drawing image n modulo their number and a random 70 % of its features
 // (so that no two keyframes are alike). Queries: a different 70 % of each image. Printed: median and
-// p99 query time, postings walked and candidates scored per query. Google Benchmark timings follow.
+// p99 query time, postings walked and candidates scored per query. Google Benchmark timings follow
+// (queries, and the bag of words of one image).
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
@@ -122,6 +123,23 @@ void BM_Query(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_Query)->Arg(50)->Arg(500)->Arg(5000)->Unit(benchmark::kMicrosecond);
+
+// Bag of words and direct index (level 1) of one image's descriptors (about 1,000 features).
+void BM_Transform(benchmark::State& state) {
+  const Data& d = data();
+  if (d.descriptors.empty()) {
+    state.SkipWithError("no shared data");
+    return;
+  }
+  size_t i = 0;
+  BowVector bow;
+  FeatureVector direct;
+  for (auto _ : state) {
+    d.voc.transform(d.descriptors[i++ % d.descriptors.size()], &bow, &direct, 1);
+    benchmark::DoNotOptimize(bow.data());
+  }
+}
+BENCHMARK(BM_Transform)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 }  // namespace nerfslam
