@@ -29,6 +29,10 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--trajectory", o.trajectory,
                      "Trajectory: handheld, orbit, forward, rotation, fast, loop (default: the scene's)");
       sub.add_option("--frames", o.frames, "Number of frames")->capture_default_str();
+      sub.add_option("--laps", o.laps,
+                     "Laps of the loop trajectory over the frames, all identical (frames - 1 must be a "
+                     "multiple of it)")
+          ->capture_default_str();
       sub.add_option("--fps", o.fps, "Frame rate")->capture_default_str();
       sub.add_option("--size", a->size, "Image size WxH (default 640x480; intrinsics scale with it)");
       sub.add_option("--camera", o.camera_yaml, "Camera YAML (our format or ROS camera_info) instead of --size");

@@ -49,6 +49,14 @@ void SynthOptions::validate() const {
     fail("unknown trajectory '{}' (valid trajectories: {})", trajectory, listNames(tn));
   if (frames < 1) fail("frames must be >= 1 (got {})", frames);
   if (frames > 1000000) fail("frames must be <= 1000000 (got {})", frames);
+  if (laps < 1 || laps > 10000) fail("laps must be in 1..10000 (got {})", laps);
+  if (laps > 1) {
+    const std::string t = trajectory.empty() ? defaultTrajectory(scene) : trajectory;
+    if (!trajectoryHasLaps(t)) fail("laps: trajectory '{}' has no laps (only loop has)", t);
+    if ((frames - 1) % laps != 0)
+      fail("laps: {} frames do not split into {} equal laps (frames - 1 must be a multiple of the laps, e.g. {})",
+           frames, laps, ((frames - 1) / laps) * laps + 1);
+  }
   if (!(fps > 0) || !std::isfinite(fps) || fps > 10000) fail("fps must be in (0, 10000] (got {})", fps);
   if (camera_yaml.empty() && (width < 1 || height < 1 || width > 8192 || height > 8192))
     fail("image size {}x{} invalid: width and height must be in 1..8192", width, height);
@@ -123,7 +131,7 @@ struct SequenceRenderer::Impl {
     so.data_dir = opts.data_dir;
     scene = makeScene(so);
     const std::string tname = opts.trajectory.empty() ? defaultTrajectory(opts.scene) : opts.trajectory;
-    traj = makeTrajectory(scene, tname, std::max(1, opts.frames - 1) / opts.fps, opts.seed);
+    traj = makeTrajectory(scene, tname, std::max(1, opts.frames - 1) / opts.fps, opts.seed, opts.laps);
     renderer.setTextureFilter(parseTextureFilter(opts.texture_filter));
     uploadScene(scene, renderer);
     render_cam = camera.undistorted();
@@ -337,9 +345,10 @@ SynthResult writeSynthSequence(const SynthOptions& opts, const fs::path& out,
     poses.push_back(seq.pose(i));
   }
   const std::string tname = seq.trajectory().name();
-  const IndexWriter index(out, seq.camera(), seq.scene(), stamps, poses,
-                          fmt::format("nerfslam synth: scene {} trajectory {} seed {} {}x{} @ {} fps", opts.scene,
-                                      tname, opts.seed, cam.width, cam.height, opts.fps));
+  const IndexWriter index(
+      out, seq.camera(), seq.scene(), stamps, poses,
+      fmt::format("nerfslam synth: scene {} trajectory {}{} seed {} {}x{} @ {} fps", opts.scene, tname,
+                  opts.laps > 1 ? fmt::format(" laps {}", opts.laps) : "", opts.seed, cam.width, cam.height, opts.fps));
   index.write(0);  // a valid, empty sequence from the start
 
   std::mutex mu;

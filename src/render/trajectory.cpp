@@ -132,6 +132,8 @@ SE3 lookAt(const Vector3d& eye, const Vector3d& target, const Vector3d& up) {
   return SE3(R, eye);
 }
 
+bool trajectoryHasLaps(const std::string& name) { return name == "loop"; }
+
 std::vector<SE3> CameraTrajectory::sample(int frames, double fps) const {
   std::vector<SE3> out;
   out.reserve(std::max(0, frames));
@@ -283,13 +285,18 @@ CameraTrajectory forwardTrajectory(const Motion& m, cv::RNG& rng, const std::str
   });
 }
 
-// loop: once around the closed path; periodic components and an end-vanishing shake make the last
-// pose equal the first.
-CameraTrajectory loopTrajectory(const Motion& m, cv::RNG& rng, const std::string& name, double duration) {
+// loop: `laps` times around the closed path; periodic components and a shake vanishing at the ends
+// of every lap make the pose at the end of a lap equal the first.
+CameraTrajectory loopTrajectory(const Motion& m, cv::RNG& rng, const std::string& name, double duration, int laps) {
   Shake shake(rng, 0.3, 0.003);
   const int look_cycles = 2;
-  return CameraTrajectory(name, duration, [=](double t) {
-    const double s01 = t / duration;
+  // Time within the current lap: laps repeat exactly; before the first lap and after the last, the
+  // first and last laps continue. With one lap it is t itself.
+  const double lap = duration / laps;
+  auto lapTime = [lap, laps](double t) { return t - std::clamp(std::floor(t / lap), 0.0, double(laps - 1)) * lap; };
+  return CameraTrajectory(name, duration, [=](double t_seq) {
+    const double t = lapTime(t_seq);
+    const double s01 = t / lap;
     const double s = m.start_s + s01 * m.path.length();
     const Vector2d p = m.path.at(s), tg = m.path.tangent(s);
     const Vector3d eye(p.x(), p.y(), m.loop_h + 0.08 * std::sin(2 * M_PI * 3 * s01));
@@ -308,13 +315,15 @@ CameraTrajectory loopTrajectory(const Motion& m, cv::RNG& rng, const std::string
 
 }  // namespace
 
-CameraTrajectory makeTrajectory(const Scene& sc, const std::string& name, double duration, uint64_t seed) {
+CameraTrajectory makeTrajectory(const Scene& sc, const std::string& name, double duration, uint64_t seed, int laps) {
   const auto& names = trajectoryNames();
   if (std::find(names.begin(), names.end(), name) == names.end()) {
     std::string list;
     for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
     fail("unknown trajectory '{}' (valid trajectories: {})", name, list);
   }
+  if (laps < 1 || laps > 10000) fail("laps must be in 1..10000 (got {})", laps);
+  if (laps > 1 && !trajectoryHasLaps(name)) fail("trajectory '{}' has no laps (only loop has)", name);
   if (!(duration > 0) || !std::isfinite(duration)) duration = 1.0;
   cv::RNG rng(seed * 0x9E3779B97F4A7C15ull + 12345u);
   const Motion m = sceneMotion(sc, rng);
@@ -322,7 +331,7 @@ CameraTrajectory makeTrajectory(const Scene& sc, const std::string& name, double
   if (name == "rotation") return rotationTrajectory(m, rng, name, duration);
   if (name == "orbit") return orbitTrajectory(m, rng, name, duration);
   if (name == "forward") return forwardTrajectory(m, rng, name, duration);
-  return loopTrajectory(m, rng, name, duration);
+  return loopTrajectory(m, rng, name, duration, laps);
 }
 
 }  // namespace nerfslam::render

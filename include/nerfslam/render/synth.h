@@ -45,6 +45,9 @@ struct SynthOptions {
   std::string scene = "room";
   std::string trajectory;  // empty: defaultTrajectory(scene)
   int frames = 600;
+  // Laps of the loop trajectory over the frames (frames - 1 must be a multiple: every lap then
+  // has the same frames, frame i and i + (frames - 1) / laps at the same pose).
+  int laps = 1;
   double fps = 30.0;
   uint64_t seed = 1;
   std::string textures = "auto";             // SceneOptions::textures

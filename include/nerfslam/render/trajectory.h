@@ -9,6 +9,9 @@
 //   fast      handheld with motion bursts (5x speed for ~0.5 s every few seconds, stronger shake)
 //   loop      closed loop: the last frame's pose equals the first's
 //
+// Laps: `loop` can go round its closed path `laps` times over the duration, each lap the same (pose(t) == pose(t +
+// duration / laps) for t in the first laps - 1 laps).
+//
 // Poses are T_world_cam with OpenCV optical axes. The world is z-up; cameras are kept upright
 // (no roll beyond the shake).
 #include <cstdint>
@@ -49,8 +52,12 @@ class CameraTrajectory {
   std::function<SE3(double)> f_;
 };
 
-// `duration`: time of the last frame ((frames - 1) / fps); the loop closes exactly at it.
-// Throws nerfslam::Error listing the valid names for an unknown trajectory.
-CameraTrajectory makeTrajectory(const Scene& scene, const std::string& name, double duration, uint64_t seed);
+// `duration`: time of the last frame ((frames - 1) / fps); the loop closes exactly at it (and, with
+// `laps` > 1, at every multiple of duration / laps). Throws nerfslam::Error listing the valid names
+// for an unknown trajectory, and for laps < 1 or laps > 1 with a trajectory other than loop.
+CameraTrajectory makeTrajectory(const Scene& scene, const std::string& name, double duration, uint64_t seed,
+                                int laps = 1);
+// The trajectories that accept laps > 1.
+bool trajectoryHasLaps(const std::string& name);
 
 }  // namespace nerfslam::render
