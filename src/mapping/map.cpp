@@ -604,4 +604,51 @@ bool Map::refreshLocalMap(TrackingLocalMap* m, bool wait) const {
   return true;
 }
 
+DescriptorVoteTable Map::descriptorVoteTable() const {
+  auto lock = lockShared(mutex_);
+  std::vector<PointId> ids;
+  ids.reserve(points_.size());
+  for (const auto& [id, p] : points_) ids.push_back(id);
+  std::sort(ids.begin(), ids.end());
+  DescriptorVoteTable table;
+  table.descriptors.reserve(ids.size() * DescriptorVoteTable::kDescriptorBytes);
+  table.observer_begin.reserve(ids.size() + 1);
+  std::vector<KeyframeId> observed_by;
+  for (PointId id : ids) {
+    const MapPoint& p = points_.at(id);
+    if (p.descriptor.empty() || p.descriptor.total() * p.descriptor.elemSize() != DescriptorVoteTable::kDescriptorBytes)
+      continue;
+    observed_by.clear();
+    for (const auto& [kf, idx] : p.observations) observed_by.push_back(kf);
+    table.add(p.descriptor.ptr<uint8_t>(), observed_by);
+  }
+  return table;
+}
+
+std::vector<RelocalizationCandidate> Map::relocalizationCandidates(const std::vector<KeyframeId>& order,
+                                                                   size_t max_candidates) const {
+  auto lock = lockShared(mutex_);
+  std::vector<RelocalizationCandidate> out;
+  for (KeyframeId id : order) {
+    if (out.size() >= max_candidates) break;
+    const auto kit = keyframes_.find(id);
+    if (kit == keyframes_.end()) continue;
+    RelocalizationCandidate c;
+    c.keyframe_id = static_cast<uint64_t>(id);
+    c.T_world_cam = kit->second.T_world_cam;
+    for (PointId pid : kit->second.points) {
+      if (pid == kNoPoint) continue;
+      const auto pit = points_.find(pid);
+      if (pit == points_.end() || pit->second.descriptor.empty()) continue;
+      TrackingMapPoint t;
+      t.id = static_cast<uint64_t>(pid);
+      t.p_world = pit->second.position;
+      t.descriptor = pit->second.descriptor;  // shares the buffer: descriptors are replaced, never written in place
+      c.points.push_back(std::move(t));
+    }
+    out.push_back(std::move(c));
+  }
+  return out;
+}
+
 }  // namespace nerfslam

@@ -75,7 +75,26 @@ KeyframeId MappingThread::insert(KeyframeInsertion in) {
   return id;
 }
 
+MappingThread::Hold MappingThread::hold() {
+  std::unique_lock<std::mutex> work(work_mutex_);
+  // Jobs submitted before: the thread must finish them first (it cannot start one while `work` is
+  // held, so pending_ only falls while it is released).
+  while (pending_.load() != 0 && thread_running_.load()) {
+    work.unlock();
+    waitIdle();
+    work.lock();
+  }
+  held_ = true;
+  return Hold(this, std::move(work));
+}
+
+MappingThread::Hold::~Hold() {
+  if (owner_) owner_->held_ = false;
+}
+
 KeyframeId MappingThread::insertNow(KeyframeInsertion kf, bool process) {
+  if (thread_running_.load() && !held_.load())
+    fail("MappingThread::insertNow while the mapping thread runs (hold() it first)");
   const KeyframeId id = insert(std::move(kf));
   if (process) {
     MappingStats s = mapper_.processKeyframe(id);
@@ -89,6 +108,7 @@ void MappingThread::run() {
   for (;;) {
     auto item = queue_.pop();
     if (!item) break;
+    std::lock_guard<std::mutex> work(work_mutex_);
     if (item->task) {
       runTask(item->task);
     } else {

@@ -215,46 +215,4 @@ LoadedMap loadMapFolder(const fs::path& dir, const std::optional<Camera>& expect
   return out;
 }
 
-std::vector<KeyframeId> keyframesByDescriptorVotes(const Map& map, const Frame& frame, int max_keyframes,
-                                                   int max_features, int max_distance) {
-  if (max_keyframes <= 0 || frame.descriptors.rows == 0 || max_features <= 0) return {};
-  const std::vector<MapPoint> points = map.points();
-  std::vector<uint8_t> table;
-  std::vector<const MapPoint*> owner;
-  table.reserve(points.size() * kDescriptorBytes);
-  for (const MapPoint& p : points) {
-    if (p.descriptor.empty() || p.descriptor.total() * p.descriptor.elemSize() != kDescriptorBytes) continue;
-    table.insert(table.end(), p.descriptor.data, p.descriptor.data + kDescriptorBytes);
-    owner.push_back(&p);
-  }
-  if (owner.empty()) return {};
-  const int n = frame.descriptors.rows;
-  const int stride = std::max(1, (n + max_features - 1) / max_features);
-  std::map<KeyframeId, int> votes;
-  for (int i = 0; i < n; i += stride) {
-    const uint8_t* d = frame.descriptors.ptr<uint8_t>(i);
-    int best = max_distance + 1;
-    size_t best_j = owner.size();
-    for (size_t j = 0; j < owner.size(); ++j) {
-      const int dist = descriptorDistance(d, &table[j * kDescriptorBytes]);
-      if (dist < best) {
-        best = dist;
-        best_j = j;
-      }
-    }
-    if (best_j < owner.size())
-      for (const auto& [kid, idx] : owner[best_j]->observations) ++votes[kid];
-  }
-  std::vector<std::pair<KeyframeId, int>> ranked(votes.begin(), votes.end());
-  std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
-    return a.second != b.second ? a.second > b.second : a.first > b.first;
-  });
-  std::vector<KeyframeId> out;
-  for (const auto& [kid, v] : ranked) {
-    if (static_cast<int>(out.size()) >= max_keyframes) break;
-    out.push_back(kid);
-  }
-  return out;
-}
-
 }  // namespace nerfslam

@@ -2,21 +2,35 @@
 
 #include <algorithm>
 #include <chrono>
-#include <map>
-#include <mutex>
+#include <future>
 #include <optional>
-#include <unordered_map>
 
 #include <spdlog/spdlog.h>
 
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/timing.h"
-#include "nerfslam/system/map_store.h"
 #include "nerfslam/tracking/initializer.h"
+#include "nerfslam/tracking/keyframe_vote.h"
 #include "nerfslam/tracking/relocalizer.h"
 #include "nerfslam/tracking/tracker.h"
+#include "nerfslam/tracking/tracking_policy.h"
 
 namespace nerfslam {
+
+namespace {
+// Thread CPU time since the previous call (or construction), in milliseconds.
+class CpuLap {
+ public:
+  double operator()() {
+    const double now = threadCpuMs(), ms = now - last_;
+    last_ = now;
+    return ms;
+  }
+
+ private:
+  double last_ = threadCpuMs();
+};
+}  // namespace
 
 const char* toString(TrackingState s) {
   switch (s) {
@@ -75,8 +89,7 @@ SlamSystem::~SlamSystem() {
 
 void SlamSystem::reset() {
   mapping_->waitIdle();
-  mergeDeferred();  // frames tracked against the map being discarded are discarded with it below
-  deferred_pose_.reset();
+  pollInitialization();  // frames tracked against the map being discarded are discarded with it below
   map_->clear();
   initializer_->reset();
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
@@ -86,7 +99,6 @@ void SlamSystem::reset() {
   last_inliers_ = 0;
   reference_ = -1;
   last_keyframe_pose_.reset();
-  last_matches_.clear();
   pre_init_frames_.clear();
   // Frames tracked against the discarded map lose their poses.
   for (auto& r : records_) {
@@ -106,16 +118,18 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
     initializer_->reset();
     return false;
   }
-  auto ref = std::make_shared<const Frame>(initializer_->reference());
-  KeyframeInsertion k0{ref, r.T_world_ref, {}};
-  KeyframeInsertion k1{cur, r.T_world_cur, {}};
-  const KeyframeId id0 = mapping_->insertNow(std::move(k0), false);
-  const KeyframeId id1 = mapping_->insertNow(std::move(k1), false);
-  std::vector<PointId> pts;
-  for (const InitialPoint& p : r.points) {
-    if (p.ref_feature < 0 || p.cur_feature < 0) continue;
-    const PointId pid = map_->addPoint(p.p_world, {{id0, p.ref_feature}, {id1, p.cur_feature}});
-    if (pid != kNoPoint) pts.push_back(pid);
+  KeyframeId id0 = -1, id1 = -1;
+  size_t num_points = 0;
+  {
+    // The new map is written here, with the mapping thread held between two jobs (a no-op wait: it
+    // is idle, nothing is submitted to it before a map exists).
+    const MappingThread::Hold hold = mapping_->hold();
+    id0 = mapping_->insertNow({std::make_shared<const Frame>(initializer_->reference()), r.T_world_ref, {}}, false);
+    id1 = mapping_->insertNow({cur, r.T_world_cur, {}}, false);
+    for (const InitialPoint& p : r.points) {
+      if (p.ref_feature < 0 || p.cur_feature < 0) continue;
+      num_points += map_->addPoint(p.p_world, {{id0, p.ref_feature}, {id1, p.cur_feature}}) != kNoPoint;
+    }
   }
   const SE3 T_cur = r.T_world_cur;
   tracker_->setPose(T_cur);
@@ -138,94 +152,80 @@ bool SlamSystem::initialize(const InitializationResult& r, const std::shared_ptr
   // The two-keyframe bundle adjustment, and tracking the frames between the two initialisation
   // frames against the adjusted map, run on the mapping thread (it has nothing else to do yet): the
   // tracking thread goes on with the next frame. Offline (lockstep) runs wait for it before the next
-  // frame as for any keyframe; the poses come back through mergeDeferred().
+  // frame as for any keyframe; pollInitialization() applies the result.
   std::vector<std::shared_ptr<const Frame>> between;
   for (const auto& f : pre_init_frames_)
     if (f->id > r.ref_frame_id && f->id < r.cur_frame_id) between.push_back(f);
   pre_init_frames_.clear();
   tracked_since_init_ = false;
+  auto result = std::make_shared<std::promise<InitHandoff>>();
+  init_handoff_ = result->get_future();
+  // A task that throws breaks the promise (pollInitialization then applies nothing).
   mapping_->submitTask(
-      [this, id0, id1, between = std::move(between), ref_id = r.ref_frame_id, cur_id = r.cur_frame_id]() {
-        DeferredInitResult out;
-        mapping_->mapper().globalBundleAdjustment(20);
-        const auto kf0 = map_->keyframe(id0);
-        const auto kf1 = map_->keyframe(id1);
-        if (!kf0 || !kf1) return;  // nothing to hand back
-        out.reference = id0;
-        out.T_world_ref = kf0->T_world_cam;
-        out.T_world_cur = kf1->T_world_cam;
-        TrackingLocalMap m;
-        if (!between.empty() && map_->localMapForTracking(id1, opt_.local_map_keyframes, &m, true)) {
-          // Pose prior interpolated between the two keyframes.
-          Tracker tracker(opt_.tracking.tracker);
-          for (const auto& f : between) {
-            const double s = double(f->id - ref_id) / double(cur_id - ref_id);
-            const SE3 prior = SE3::interpolate(out.T_world_ref, out.T_world_cur, s);
-            tracker.setPose(prior);
-            const TrackingResult tr = tracker.track(*f, m.points, &prior);
-            if (tr.quality == TrackingQuality::kLost) continue;
-            out.frames.push_back({f->id, tr.T_world_cam, tr.num_inliers});
-          }
-          if (!out.frames.empty())
-            spdlog::info("{} frames between the initialisation frames tracked against the new map", out.frames.size());
-        }
-        std::lock_guard<std::mutex> lock(deferred_mutex_);
-        deferred_ = std::move(out);
+      [this, result, id0, id1, between = std::move(between), ref_id = r.ref_frame_id, cur_id = r.cur_frame_id] {
+        result->set_value(adjustNewMap(id0, id1, between, ref_id, cur_id));
       });
   rec.tracked = true;
   rec.keyframe = true;
   rec.reference = id1;
   rec.T_ref_cam = SE3();
   rec.T_world_cam = T_cur;
-  rec.num_inliers = static_cast<int>(pts.size());
+  rec.num_inliers = static_cast<int>(num_points);
   rec.message =
       fmt::format("initialised ({}, {} points, parallax {:.1f} deg)", r.model, map_->numPoints(), r.parallax_deg);
   spdlog::info("frame {}: {}", rec.index, rec.message);
   return true;
 }
 
-void SlamSystem::mergeDeferred() const {
-  std::optional<DeferredInitResult> d;
-  {
-    std::lock_guard<std::mutex> lock(deferred_mutex_);
-    d.swap(deferred_);
+SlamSystem::InitHandoff SlamSystem::adjustNewMap(KeyframeId id0, KeyframeId id1,
+                                                 const std::vector<std::shared_ptr<const Frame>>& between,
+                                                 uint64_t ref_frame_id, uint64_t cur_frame_id) {
+  InitHandoff out;
+  mapping_->mapper().globalBundleAdjustment(20);
+  const auto kf0 = map_->keyframe(id0);
+  const auto kf1 = map_->keyframe(id1);
+  if (!kf0 || !kf1) return out;  // nothing to hand back (reference -1)
+  out.reference = id0;
+  out.T_world_ref = kf0->T_world_cam;
+  out.T_world_cur = kf1->T_world_cam;
+  TrackingLocalMap m;
+  if (between.empty() || !map_->localMapForTracking(id1, opt_.local_map_keyframes, &m, true)) return out;
+  // Pose prior interpolated between the two keyframes.
+  Tracker tracker(opt_.tracking.tracker);
+  for (const auto& f : between) {
+    const double s = double(f->id - ref_frame_id) / double(cur_frame_id - ref_frame_id);
+    const SE3 prior = SE3::interpolate(out.T_world_ref, out.T_world_cur, s);
+    tracker.setPose(prior);
+    const TrackingResult tr = tracker.track(*f, m.points, &prior);
+    if (tr.quality == TrackingQuality::kLost) continue;
+    out.frames.push_back({f->id, tr.T_world_cam, tr.num_inliers});
   }
-  if (!d) return;
-  for (const DeferredFrame& f : d->frames)
+  if (!out.frames.empty())
+    spdlog::info("{} frames between the initialisation frames tracked against the new map", out.frames.size());
+  return out;
+}
+
+void SlamSystem::pollInitialization() {
+  if (!init_handoff_.valid() || init_handoff_.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+  InitHandoff d;
+  try {
+    d = init_handoff_.get();
+  } catch (const std::future_error&) {
+    return;  // the task failed (the mapping thread logged why): the frames stay untracked
+  }
+  if (d.reference < 0) return;
+  for (const InitHandoff::TrackedFrame& f : d.frames)
     for (auto& prev : records_)
       if (prev.index == f.index && !prev.tracked) {
         prev.tracked = true;
-        prev.reference = d->reference;
-        prev.T_ref_cam = d->T_world_ref.inverse() * f.T_world_cam;
+        prev.reference = d.reference;
+        prev.T_ref_cam = d.T_world_ref.inverse() * f.T_world_cam;
         prev.T_world_cam = f.T_world_cam;
         prev.num_inliers = f.num_inliers;
         prev.message = "tracked after initialisation";
       }
-  deferred_pose_ = d->T_world_cur;
-}
-
-KeyframeId SlamSystem::chooseReference(const std::vector<MapMatch>& matches) const {
-  // The matched points are local-map points: their observers are in local_ (no map lock needed).
-  std::map<KeyframeId, int> counts;
-  for (const auto& m : matches) {
-    const auto it = std::lower_bound(local_.points.begin(), local_.points.end(), m.point_id,
-                                     [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });
-    if (it == local_.points.end() || it->id != m.point_id) continue;
-    const size_t i = static_cast<size_t>(it - local_.points.begin());
-    for (int k = local_.observer_begin[i]; k < local_.observer_begin[i + 1]; ++k) ++counts[local_.observers[size_t(k)]];
-  }
-  KeyframeId best = -1;
-  int best_count = 0;
-  for (const auto& [k, c] : counts)
-    if (c > best_count || (c == best_count && k > best)) {
-      best = k;
-      best_count = c;
-    }
-  if (best < 0) {
-    const auto last = map_->lastKeyframeId();
-    return last ? *last : -1;
-  }
-  return best;
+  // No frame tracked against the map yet: start from the adjusted pose of the newest keyframe.
+  if (!tracked_since_init_ && state_ == TrackingState::kTracking) tracker_->setPose(d.T_world_cur);
 }
 
 void SlamSystem::buildLocalMap(KeyframeId ref, bool wait) {
@@ -261,241 +261,157 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   if (finished_) fail("SlamSystem::trackFrame after finish()");
   const auto t0 = std::chrono::steady_clock::now();
   const double cpu0 = threadCpuMs();
-  mergeDeferred();  // what the mapping thread finished for a new map (initialize())
-  if (deferred_pose_) {
-    // No frame tracked against the map yet: start from the adjusted pose of the newest keyframe.
-    if (!tracked_since_init_ && state_ == TrackingState::kTracking) tracker_->setPose(*deferred_pose_);
-    deferred_pose_.reset();
-  }
+  pollInitialization();  // what the mapping thread finished for a new map (initialize())
   FrameRecord rec;
   rec.index = index;
   rec.timestamp = timestamp;
-  auto frame = std::make_shared<Frame>(extractFrame(image, camera_, opt_.tracking.features, index, timestamp));
+  const auto frame =
+      std::make_shared<const Frame>(extractFrame(image, camera_, opt_.tracking.features, index, timestamp));
   rec.num_features = static_cast<int>(frame->size());
   rec.extract_cpu_ms = threadCpuMs() - cpu0;
   rec.extract_stages = frame->timings;
-  std::shared_ptr<const Frame> cframe = frame;
-  auto finishRecord = [&]() -> FrameRecord {
-    rec.state = state_;
-    rec.tracking_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    rec.tracking_cpu_ms = threadCpuMs() - cpu0;
-    records_.push_back(rec);
-    return rec;
-  };
-
   const bool localize_only = localizationOnly();
-  if (state_ == TrackingState::kNotInitialized) {
-    if (localize_only) {  // no map to localise in, and none may be built
-      rec.message = "localisation only: no map";
-      return finishRecord();
-    }
-    if (frame->size() < 8) {
-      rec.message = fmt::format("{} features: nothing to initialise from", frame->size());
-      last_init_message_ = rec.message;
-      return finishRecord();
-    }
-    pre_init_frames_.push_back(cframe);
-    if (pre_init_frames_.size() > 300) pre_init_frames_.erase(pre_init_frames_.begin());
-    const InitializationResult r = initializer_->addFrame(*frame);
-    rec.init_klt_cpu_ms = r.klt_cpu_ms;
-    rec.init_models_cpu_ms = r.models_cpu_ms;
-    if (!r.success) {
-      rec.message = r.reason;
-      last_init_message_ = r.reason;
-      return finishRecord();
-    }
-    initialize(r, cframe, rec);
-    return finishRecord();
-  }
+  if (state_ == TrackingState::kNotInitialized)
+    initializeFrom(frame, localize_only, rec);
+  else
+    trackAgainstMap(frame, localize_only, rec);
+  rec.state = state_;
+  rec.tracking_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  rec.tracking_cpu_ms = threadCpuMs() - cpu0;
+  records_.push_back(rec);
+  return rec;
+}
 
+void SlamSystem::initializeFrom(const std::shared_ptr<const Frame>& frame, bool localize_only, FrameRecord& rec) {
+  if (localize_only) {  // no map to localise in, and none may be built
+    rec.message = "localisation only: no map";
+    return;
+  }
+  if (frame->size() < 8) {
+    rec.message = fmt::format("{} features: nothing to initialise from", frame->size());
+    last_init_message_ = rec.message;
+    return;
+  }
+  pre_init_frames_.push_back(frame);
+  if (pre_init_frames_.size() > 300) pre_init_frames_.erase(pre_init_frames_.begin());
+  const InitializationResult r = initializer_->addFrame(*frame);
+  rec.init_klt_cpu_ms = r.klt_cpu_ms;
+  rec.init_models_cpu_ms = r.models_cpu_ms;
+  if (!r.success) {
+    rec.message = r.reason;
+    last_init_message_ = r.reason;
+    return;
+  }
+  initialize(r, frame, rec);
+}
+
+WeakTrackingPolicy SlamSystem::weakTrackingPolicy() const {
+  WeakTrackingPolicy p;
+  p.relocalize_when_weak = opt_.relocalize_when_weak;
+  p.inlier_drop = opt_.relocalize_inlier_drop;
+  p.min_inliers_good = opt_.tracking.tracker.min_inliers_good;
+  return p;
+}
+
+void SlamSystem::trackAgainstMap(const std::shared_ptr<const Frame>& frame, bool localize_only, FrameRecord& rec) {
   ++frames_since_keyframe_;
   tracked_since_init_ = true;
-  double lap = threadCpuMs();
-  auto lapMs = [&lap] {
-    const double now = threadCpuMs(), ms = now - lap;
-    lap = now;
-    return ms;
-  };
+  CpuLap lap;
   buildLocalMap(reference_, false);
-  rec.local_map_cpu_ms = lapMs();
+  rec.local_map_cpu_ms = lap();
   const bool had_pose = tracker_->hasPose();
   const SE3 pose_before = tracker_->lastPose();  // restored when a weak pose is refused below
   TrackingResult res = tracker_->track(*frame, local_.points);
-  rec.track_cpu_ms = lapMs();
-  bool relocalised = false;
-  // Relocalisation when lost, and when tracking is weak for want of inliers (a wide baseline or a
-  // sudden motion the motion model missed, as between the photos of a multi-view set): the pose with
-  // more inliers wins.
-  const bool weak_retry = opt_.relocalize_when_weak && res.quality != TrackingQuality::kLost &&
-                          (res.num_inliers < opt_.tracking.tracker.min_inliers_good ||
-                           double(res.num_inliers) < opt_.relocalize_inlier_drop * double(last_inliers_));
+  rec.track_cpu_ms = lap();
+  const WeakTrackingPolicy weak = weakTrackingPolicy();
+  const bool weak_retry = relocalizeWeakTracking(res, last_inliers_, weak);
+  bool relocalized = false;
   if (res.quality == TrackingQuality::kLost || weak_retry) {
-    // Relocalisation against the most recent keyframes.
-    std::vector<RelocalizationCandidate> cands;
-    auto ids = map_->keyframeIds();
-    int max_candidates = opt_.relocalization_candidates;
-    // A loaded map, localisation only, or lost: the camera may be anywhere in the map, so the
-    // keyframes that share the most descriptors with the frame are tried too (best-voted first).
-    if (map_mode_ != MapMode::kSlam || localize_only || res.quality == TrackingQuality::kLost) {
-      const auto voted = keyframesByDescriptorVotes(*map_, *frame, opt_.relocalization_candidates);
-      ids.insert(ids.end(), voted.rbegin(), voted.rend());
-      max_candidates += static_cast<int>(voted.size());
-    }
-    for (auto it = ids.rbegin(); it != ids.rend() && static_cast<int>(cands.size()) < max_candidates; ++it) {
-      const auto kf = map_->keyframe(*it);
-      if (!kf || std::any_of(cands.begin(), cands.end(), [&](const auto& c) { return c.keyframe_id == uint64_t(*it); }))
-        continue;
-      RelocalizationCandidate c;
-      c.keyframe_id = static_cast<uint64_t>(*it);
-      c.T_world_cam = kf->T_world_cam;
-      std::vector<PointId> pids;
-      for (PointId p : kf->points)
-        if (p != kNoPoint) pids.push_back(p);
-      for (const MapPoint& p : map_->points(pids)) {
-        if (p.descriptor.empty()) continue;
-        TrackingMapPoint t;
-        t.id = static_cast<uint64_t>(p.id);
-        t.p_world = p.position;
-        t.descriptor = p.descriptor;
-        c.points.push_back(std::move(t));
-      }
-      cands.push_back(std::move(c));
-    }
-    const RelocalizationResult rl =
-        relocalize(*frame, cands, opt_.tracking.relocalizer, opt_.tracking.tracker.optimizer);
-    if (rl.success) {
-      const TrackingResult before = res;
-      const KeyframeId ref_before = local_.ref;
-      tracker_->setPose(rl.T_world_cam);
-      buildLocalMap(static_cast<KeyframeId>(rl.keyframe_id));
-      TrackingResult again = tracker_->track(*frame, local_.points, &rl.T_world_cam);
-      if (weak_retry && (again.quality == TrackingQuality::kLost || again.num_inliers <= before.num_inliers)) {
-        // The weak pose stands: the tracker and the local map go back to it.
-        tracker_->setPose(before.T_world_cam);
-        buildLocalMap(ref_before);
-      } else {
-        res = std::move(again);
-        if (res.quality != TrackingQuality::kLost) {
-          relocalised = true;
-          ++relocalizations_;
-          if (map_mode_ != MapMode::kSlam && relocalized_at_frame_ < 0) relocalized_at_frame_ = int64_t(index);
-          spdlog::info("frame {}: relocalised against keyframe {} ({} inliers{})", index, rl.keyframe_id,
-                       res.num_inliers,
-                       weak_retry ? fmt::format("; tracking had {}", before.num_inliers) : std::string());
-        }
-      }
-    } else if (!weak_retry) {
-      rec.message = "lost: " + (res.message.empty() ? std::string("too few inliers") : res.message) +
-                    "; relocalisation: " + rl.reason;
-    }
-    rec.relocalize_cpu_ms = lapMs();
+    relocalized = relocalizeFrame(*frame, weak_retry, localize_only, res, rec);
+    rec.relocalize_cpu_ms = lap();
   }
-  // Weak evidence is not enough where the motion model cannot be trusted: right after a loss, or
-  // when the inliers collapsed and relocalisation found nothing better (a jump or a gap in the
-  // input). Such a pose is most likely wrong and, once in a keyframe, would corrupt the map: the
-  // frame is lost instead, and the tracker goes back to where it was.
-  if (res.quality == TrackingQuality::kWeak && !relocalised) {
-    const bool after_loss = state_ == TrackingState::kLost;
-    const bool collapsed =
-        opt_.relocalize_when_weak && double(res.num_inliers) < opt_.relocalize_inlier_drop * double(last_inliers_);
-    if (after_loss || collapsed) {
-      rec.message = fmt::format(
-          "lost: {} inliers {} ({}); relocalisation found no better pose", res.num_inliers,
-          after_loss ? "are too weak to recover from a loss" : "collapsed from",
-          after_loss ? fmt::format("< {}", opt_.tracking.tracker.min_inliers_good) : std::to_string(last_inliers_));
-      res.quality = TrackingQuality::kLost;
-      if (had_pose) tracker_->setPose(pose_before);
-    }
+  if (const auto refused = refuseWeakPose(res, relocalized, state_ == TrackingState::kLost, last_inliers_, weak)) {
+    rec.message = *refused;
+    res.quality = TrackingQuality::kLost;
+    if (had_pose) tracker_->setPose(pose_before);
   }
   rec.num_inliers = res.num_inliers;
   last_inliers_ = res.quality == TrackingQuality::kLost ? 0 : res.num_inliers;
   if (res.quality == TrackingQuality::kLost) {
-    if (state_ != TrackingState::kLost) spdlog::warn("frame {}: tracking lost ({})", index, rec.message);
+    if (state_ != TrackingState::kLost) spdlog::warn("frame {}: tracking lost ({})", rec.index, rec.message);
     state_ = TrackingState::kLost;
     if (static_cast<int>(map_->numKeyframes()) <= opt_.reset_if_lost_with_keyframes && map_mode_ == MapMode::kSlam &&
         !localize_only) {
-      spdlog::warn("frame {}: lost with {} keyframes, reinitialising", index, map_->numKeyframes());
+      spdlog::warn("frame {}: lost with {} keyframes, reinitialising", rec.index, map_->numKeyframes());
       reset();
       rec.message += " (map reset)";
     }
-    return finishRecord();
+    return;
   }
   state_ = TrackingState::kTracking;
-  last_matches_ = res.matches;
-  // Statistics for point culling: visible = projects into the image, found = inlier match.
-  if (!localize_only) {
+  if (!localize_only) {  // statistics for point culling: visible = projects into the image, found = inlier
     std::vector<PointId> visible, found;
-    const SE3 T_cw = res.T_world_cam.inverse();
-    for (const auto& p : local_.points) {
-      Eigen::Vector2d uv;
-      if (camera_.projectInImage(T_cw * p.p_world, &uv)) visible.push_back(static_cast<PointId>(p.id));
-    }
+    for (uint64_t id : visiblePoints(local_, camera_, res.T_world_cam)) visible.push_back(static_cast<PointId>(id));
     for (const auto& m : res.matches) found.push_back(static_cast<PointId>(m.point_id));
     map_->increaseVisible(visible);
     map_->increaseFound(found);
   }
-  reference_ = chooseReference(res.matches);
-  // The reference keyframe's pose and points from the local map (no keyframe copies on this thread).
-  const auto ref_it = std::find(local_.keyframes.begin(), local_.keyframes.end(), reference_);
-  const bool ref_local = ref_it != local_.keyframes.end();
-  const size_t ref_slot = static_cast<size_t>(ref_it - local_.keyframes.begin());
-  std::optional<SE3> ref_pose;
-  if (ref_local)
-    ref_pose = local_.keyframe_poses[ref_slot];
-  else
-    ref_pose = map_->resolvePose(reference_);
+  reference_ = chooseReferenceKeyframe(res.matches, local_);
+  if (reference_ < 0) reference_ = map_->lastKeyframeId().value_or(-1);
+  // The reference keyframe's pose from the local map (no keyframe copies on this thread).
+  const auto ref_slot = local_.findKeyframe(reference_);
+  const std::optional<SE3> ref_pose = ref_slot ? local_.keyframe_poses[*ref_slot] : map_->resolvePose(reference_);
   rec.tracked = true;
   rec.T_world_cam = res.T_world_cam;
   rec.reference = reference_;
   rec.T_ref_cam = ref_pose ? ref_pose->inverse() * res.T_world_cam : res.T_world_cam;
+  submitIfKeyframe(frame, res, localize_only, rec);
+}
 
-  // Keyframe decision.
-  KeyframeDecisionInput in;
-  in.quality = res.quality;
-  in.num_inliers = res.num_inliers;
-  in.frames_since_last_keyframe = frames_since_keyframe_;
-  in.median_scene_depth = res.median_depth > 0 ? res.median_depth : 1.0;
-  double nearest = std::numeric_limits<double>::infinity();
-  const Eigen::Vector3d axis = res.T_world_cam.rotation() * Eigen::Vector3d::UnitZ();
-  const double min_cos = std::cos(opt_.tracking.keyframes.covered_view_angle_deg * M_PI / 180.0);
-  const double same_cos = std::cos(opt_.tracking.keyframes.stopped_view_angle_deg * M_PI / 180.0);
-  // A revisit is a return to the view of an older keyframe: the newest two, which exploration
-  // extends from, do not count (as keyframe culling keeps them).
-  const KeyframeId newest =
-      local_.keyframes.empty() ? 0 : *std::max_element(local_.keyframes.begin(), local_.keyframes.end());
-  for (size_t i = 0; i < local_.keyframe_poses.size(); ++i) {
-    const SE3& T = local_.keyframe_poses[i];
-    const double dist = (T.translation() - res.T_world_cam.translation()).norm();
-    nearest = std::min(nearest, dist);
-    const double cos_axes = (T.rotation() * Eigen::Vector3d::UnitZ()).dot(axis);
-    if (cos_axes >= same_cos) in.distance_to_same_view = std::min(in.distance_to_same_view, dist);
-    if (local_.keyframes[i] < newest - 1 && cos_axes >= min_cos)
-      in.distance_to_similar_view = std::min(in.distance_to_similar_view, dist);
+bool SlamSystem::relocalizeFrame(const Frame& frame, bool weak_retry, bool localize_only, TrackingResult& res,
+                                 FrameRecord& rec) {
+  const std::vector<KeyframeId> ids = map_->keyframeIds();
+  std::vector<KeyframeId> voted;
+  if (relocalizeAnywhere(map_mode_ != MapMode::kSlam, localize_only, res.quality))
+    voted = keyframesByDescriptorVotes(frame, map_->descriptorVoteTable(), opt_.relocalization_candidates);
+  const RelocalizationChoice choice = chooseRelocalizationKeyframes(ids, voted, opt_.relocalization_candidates);
+  const RelocalizationResult rl =
+      relocalize(frame, map_->relocalizationCandidates(choice.keyframes, choice.max_candidates),
+                 opt_.tracking.relocalizer, opt_.tracking.tracker.optimizer);
+  if (!rl.success) {
+    if (!weak_retry)
+      rec.message = "lost: " + (res.message.empty() ? std::string("too few inliers") : res.message) +
+                    "; relocalisation: " + rl.reason;
+    return false;
   }
-  if (last_keyframe_pose_ && (last_keyframe_pose_->rotation() * Eigen::Vector3d::UnitZ()).dot(axis) >= same_cos)
-    in.distance_to_same_view =
-        std::min(in.distance_to_same_view, (last_keyframe_pose_->translation() - res.T_world_cam.translation()).norm());
-  in.distance_to_nearest_keyframe = std::isfinite(nearest) ? nearest : 0.0;
-  if (ref_local) {
-    in.reference_keyframe_points = local_.keyframe_num_points[ref_slot];
-    in.reference_keyframe_established_points = local_.keyframe_num_established[ref_slot];
-    // Only the covered-view gate (off by default) asks which inliers the reference keyframe observes.
-    if (opt_.tracking.keyframes.covered_view_angle_deg > 0)
-      for (const auto& m : res.matches) {
-        const auto it = std::lower_bound(local_.points.begin(), local_.points.end(), m.point_id,
-                                         [](const TrackingMapPoint& p, uint64_t id) { return p.id < id; });
-        if (it == local_.points.end() || it->id != m.point_id) continue;
-        const size_t i = static_cast<size_t>(it - local_.points.begin());
-        const auto b = local_.observers.begin() + local_.observer_begin[i],
-                   e = local_.observers.begin() + local_.observer_begin[i + 1];
-        in.tracked_reference_points += std::find(b, e, reference_) != e;
-      }
+  const KeyframeId ref_before = local_.ref;
+  tracker_->setPose(rl.T_world_cam);
+  buildLocalMap(static_cast<KeyframeId>(rl.keyframe_id));
+  TrackingResult again = tracker_->track(frame, local_.points, &rl.T_world_cam);
+  if (!relocalizedPoseWins(weak_retry, res, again)) {
+    // The weak pose stands: the tracker and the local map go back to it.
+    tracker_->setPose(res.T_world_cam);
+    buildLocalMap(ref_before);
+    return false;
   }
-  in.mapping_idle = mapping_->idle();
+  const int tracked_inliers = res.num_inliers;
+  res = std::move(again);
+  if (res.quality == TrackingQuality::kLost) return false;
+  ++relocalizations_;
+  if (map_mode_ != MapMode::kSlam && relocalized_at_frame_ < 0) relocalized_at_frame_ = int64_t(frame.id);
+  spdlog::info("frame {}: relocalised against keyframe {} ({} inliers{})", frame.id, rl.keyframe_id, res.num_inliers,
+               weak_retry ? fmt::format("; tracking had {}", tracked_inliers) : std::string());
+  return true;
+}
+
+void SlamSystem::submitIfKeyframe(const std::shared_ptr<const Frame>& frame, const TrackingResult& res,
+                                  bool localize_only, FrameRecord& rec) {
+  const KeyframeDecisionInput in = keyframeDecisionInput(
+      res, local_, reference_, last_keyframe_pose_, frames_since_keyframe_, mapping_->idle(), opt_.tracking.keyframes);
   const KeyframeDecision d = decideKeyframe(in, opt_.tracking.keyframes);
   if (d.insert && !localize_only) {  // localisation never adds to the map
     KeyframeInsertion k;
-    k.frame = cframe;
+    k.frame = frame;
     k.T_world_cam = res.T_world_cam;
     for (const auto& m : res.matches) k.matches.emplace_back(m.feature, static_cast<PointId>(m.point_id));
     if (mapping_->submit(std::move(k))) {
@@ -505,16 +421,15 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
     }
   }
   rec.message = d.reason;
-  spdlog::debug("frame {}: {} inliers / {} matches / {} candidates, rms {:.2f} px, {}{}", index, res.num_inliers,
+  spdlog::debug("frame {}: {} inliers / {} matches / {} candidates, rms {:.2f} px, {}{}", rec.index, res.num_inliers,
                 res.num_matches, res.num_candidates, res.rms_px, d.reason, rec.keyframe ? " -> keyframe" : "");
-  return finishRecord();
 }
 
 void SlamSystem::finish(bool global_ba) {
   if (finished_) return;
   finished_ = true;
   mapping_->stop();
-  mergeDeferred();
+  pollInitialization();
   map_->flushTrackingStatistics();  // statistics queued while the mapping thread held the map
   if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0 &&
       map_mode_ != MapMode::kLocalize) {
@@ -526,7 +441,6 @@ void SlamSystem::finish(bool global_ba) {
 }
 
 Trajectory SlamSystem::trajectory() const {
-  mergeDeferred();
   Trajectory out;
   for (const auto& r : records_) {
     if (!r.tracked) continue;

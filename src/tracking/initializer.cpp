@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include <spdlog/spdlog.h>
 #include <Eigen/Geometry>
@@ -28,6 +29,53 @@ InitializationResult refuse(InitializationResult r, const std::string& why) {
   return r;
 }
 
+// Pure rotation: the calibrated homography K^-1 H K is (a multiple of) a rotation, and the parallax
+// of H's inliers once that rotation is undone is below `min_parallax_deg`. Returns why (and that
+// parallax in `parallax_deg`) when it is one.
+std::optional<std::string> pureRotation(const ModelEstimate& H, const Eigen::Matrix3d& K, const Points2d& x1,
+                                        const Points2d& x2, double min_parallax_deg, double* parallax_deg) {
+  const Eigen::Matrix3d Hn = K.inverse() * H.M * K;
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(Hn, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::Vector3d singular = svd.singularValues();
+  const Eigen::Vector3d sv = singular / singular(1);
+  Eigen::Matrix3d R = svd.matrixU() * svd.matrixV().transpose();
+  if (R.determinant() < 0) R = -R;
+  const Eigen::Matrix3d Ki = K.inverse();
+  std::vector<double> ang;
+  for (size_t i = 0; i < x1.size(); ++i) {
+    if (!H.inliers[i]) continue;
+    const Eigen::Vector3d a = (R * (Ki * x1[i].homogeneous())).normalized();
+    const Eigen::Vector3d b = (Ki * x2[i].homogeneous()).normalized();
+    ang.push_back(std::acos(std::clamp(a.dot(b), -1.0, 1.0)) * 180.0 / M_PI);
+  }
+  const double rot_parallax = median(ang);
+  if (!(sv(0) - 1.0 < 0.01 && 1.0 - sv(2) < 0.01 && rot_parallax < min_parallax_deg)) return std::nullopt;
+  *parallax_deg = rot_parallax;
+  return fmt::format(
+      "pure rotation: homography is a rotation (singular values {:.3f} {:.3f} "
+      "{:.3f}), parallax {:.2f}° < {:.1f}°",
+      sv(0), sv(1), sv(2), rot_parallax, min_parallax_deg);
+}
+
+// Why the reconstruction from model `M` (named `model`, fitted to `num_tracks` tracks) is not good
+// enough to start a map from, or nothing.
+std::optional<std::string> weakReconstruction(const Reconstruction& rec, const ModelEstimate& M,
+                                              const std::string& model, size_t num_tracks,
+                                              const InitializerOptions& opt) {
+  if (rec.num_good < opt.min_inliers)
+    return fmt::format("inliers {} < {} ({} model, {} RANSAC inliers of {} tracks)", rec.num_good, opt.min_inliers,
+                       model, M.num_inliers, num_tracks);
+  if (rec.parallax_deg < opt.min_parallax_deg)
+    return fmt::format("parallax {:.2f}° < {:.1f}° ({} model)", rec.parallax_deg, opt.min_parallax_deg, model);
+  if (rec.num_good < opt.min_good_fraction * M.num_inliers)
+    return fmt::format("only {} of {} {} inliers triangulate in front of both cameras", rec.num_good, M.num_inliers,
+                       model);
+  if (rec.second_best_good > 0.7 * rec.num_good)
+    return fmt::format("ambiguous pose: runner-up candidate explains {} of {} points", rec.second_best_good,
+                       rec.num_good);
+  return std::nullopt;
+}
+
 }  // namespace
 
 Initializer::Initializer(InitializerOptions options) : opt_(options) {}
@@ -44,41 +92,82 @@ InitializationResult Initializer::addFrame(const Frame& frame) {
   InitializationResult r;
   r.cur_frame_id = frame.id;
   if (frame.pyramid.empty()) fail("Initializer: frame {} has no image", frame.id);
-  if (!has_ref_ || frame.camera.width != ref_.camera.width || frame.camera.height != ref_.camera.height) {
-    reset();
-    r.ref_frame_id = frame.id;
-    if (static_cast<int>(frame.size()) < opt_.min_tracked)
-      return refuse(r, fmt::format("reference frame has {} features < {}", frame.size(), opt_.min_tracked));
-    ref_ = frame;
-    has_ref_ = true;
-    cv::buildOpticalFlowPyramid(frame.pyramid[0], prev_pyr_, cv::Size(opt_.klt_window, opt_.klt_window),
-                                opt_.klt_levels, true);
-    prev_pts_.clear();
-    track_ref_index_.clear();
-    // KLT costs the same per corner: track at most max_tracks, every n-th, which keeps the
-    // keypoints' spread over the image and over the pyramid levels (they are stored level by level,
-    // bucketed in a grid).
-    const size_t n = frame.keypoints.size();
-    const size_t cap = static_cast<size_t>(std::max(opt_.max_tracks, opt_.min_tracked));
-    const size_t m = opt_.max_tracks > 0 ? std::min(n, cap) : n;
-    for (size_t k = 0; k < m; ++k) {
-      const size_t i = k * n / m;
-      prev_pts_.push_back(frame.keypoints[i].pt);
-      track_ref_index_.push_back(static_cast<int>(i));
-    }
-    r.reason = fmt::format("reference frame set ({} corners, {} tracked)", n, m);
-    r.num_tracked = static_cast<int>(m);
-    return r;
-  }
+  if (!has_ref_ || frame.camera.width != ref_.camera.width || frame.camera.height != ref_.camera.height)
+    return setReference(frame, r);
   r.ref_frame_id = ref_.id;
 
+  const double t_klt = threadCpuMs();
+  trackCorners(frame);
+  r.num_tracked = static_cast<int>(prev_pts_.size());
+  r.klt_cpu_ms = threadCpuMs() - t_klt;
+  if (r.num_tracked < opt_.min_tracked) {
+    const std::string why =
+        fmt::format("tracks {} < {}: reference reset to frame {}", r.num_tracked, opt_.min_tracked, frame.id);
+    reset();
+    InitializationResult again = addFrame(frame);  // becomes the new reference
+    again.cur_frame_id = frame.id;
+    again.num_tracked = r.num_tracked;
+    return refuse(again, why);
+  }
+
+  // Ideal-pixel correspondences.
+  const bool distorted = frame.camera.hasDistortion();
+  Points2d x1(prev_pts_.size()), x2(prev_pts_.size());
+  std::vector<double> flow(prev_pts_.size());
+  for (size_t i = 0; i < prev_pts_.size(); ++i) {
+    x1[i] = ref_.undistorted[static_cast<size_t>(track_ref_index_[i])];
+    const Eigen::Vector2d uv(prev_pts_[i].x, prev_pts_[i].y);
+    x2[i] = distorted ? frame.camera.undistortPoint(uv) : uv;
+    flow[i] = (x2[i] - x1[i]).norm();
+  }
+  r.median_flow_px = median(flow);
+  if (r.median_flow_px < opt_.min_median_flow_px)
+    return refuse(
+        r, fmt::format("median flow {:.2f} px < {:.1f} px (static camera)", r.median_flow_px, opt_.min_median_flow_px));
+
+  const double t_models = threadCpuMs();
+  const std::optional<std::string> why = reconstruct(frame, x1, x2, r);
+  r.models_cpu_ms = threadCpuMs() - t_models;
+  if (why) return refuse(r, *why);
+  spdlog::info("initialised from frames {} -> {}: {} model (R_H {:.2f}), {} points, parallax {:.2f}°", r.ref_frame_id,
+               r.cur_frame_id, r.model, r.homography_ratio, r.points.size(), r.parallax_deg);
+  return r;
+}
+
+InitializationResult Initializer::setReference(const Frame& frame, InitializationResult r) {
+  reset();
+  r.ref_frame_id = frame.id;
+  if (static_cast<int>(frame.size()) < opt_.min_tracked)
+    return refuse(r, fmt::format("reference frame has {} features < {}", frame.size(), opt_.min_tracked));
+  ref_ = frame;
+  has_ref_ = true;
+  cv::buildOpticalFlowPyramid(frame.pyramid[0], prev_pyr_, cv::Size(opt_.klt_window, opt_.klt_window), opt_.klt_levels,
+                              true);
+  prev_pts_.clear();
+  track_ref_index_.clear();
+  // KLT costs the same per corner: track at most max_tracks, every n-th, which keeps the
+  // keypoints' spread over the image and over the pyramid levels (they are stored level by level,
+  // bucketed in a grid).
+  const size_t n = frame.keypoints.size();
+  const size_t cap = static_cast<size_t>(std::max(opt_.max_tracks, opt_.min_tracked));
+  const size_t m = opt_.max_tracks > 0 ? std::min(n, cap) : n;
+  for (size_t k = 0; k < m; ++k) {
+    const size_t i = k * n / m;
+    prev_pts_.push_back(frame.keypoints[i].pt);
+    track_ref_index_.push_back(static_cast<int>(i));
+  }
+  r.reason = fmt::format("reference frame set ({} corners, {} tracked)", n, m);
+  r.num_tracked = static_cast<int>(m);
+  return r;
+}
+
+void Initializer::trackCorners(const Frame& frame) {
   // Frame-to-frame pyramidal KLT with a forward-backward check.
   std::vector<cv::Point2f> fwd, bwd;
   std::vector<uchar> st_f, st_b;
   std::vector<float> err;
   const cv::Size win(opt_.klt_window, opt_.klt_window);
   const cv::TermCriteria crit(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01);
-  const double t_klt = threadCpuMs();
   std::vector<cv::Mat> cur_pyr;
   cv::buildOpticalFlowPyramid(frame.pyramid[0], cur_pyr, win, opt_.klt_levels, true);
   if (!prev_pts_.empty()) {
@@ -104,75 +193,23 @@ InitializationResult Initializer::addFrame(const Frame& frame) {
   prev_pts_ = kept;
   track_ref_index_ = kept_idx;
   prev_pyr_ = std::move(cur_pyr);
-  r.num_tracked = static_cast<int>(kept.size());
-  r.klt_cpu_ms = threadCpuMs() - t_klt;
+}
 
-  if (r.num_tracked < opt_.min_tracked) {
-    const std::string why =
-        fmt::format("tracks {} < {}: reference reset to frame {}", r.num_tracked, opt_.min_tracked, frame.id);
-    reset();
-    InitializationResult again = addFrame(frame);  // becomes the new reference
-    again.cur_frame_id = frame.id;
-    again.num_tracked = r.num_tracked;
-    return refuse(again, why);
-  }
-
-  // Ideal-pixel correspondences.
-  const bool distorted = frame.camera.hasDistortion();
-  Points2d x1(kept.size()), x2(kept.size());
-  std::vector<double> flow(kept.size());
-  for (size_t i = 0; i < kept.size(); ++i) {
-    x1[i] = ref_.undistorted[static_cast<size_t>(kept_idx[i])];
-    const Eigen::Vector2d uv(kept[i].x, kept[i].y);
-    x2[i] = distorted ? frame.camera.undistortPoint(uv) : uv;
-    flow[i] = (x2[i] - x1[i]).norm();
-  }
-  r.median_flow_px = median(flow);
-  if (r.median_flow_px < opt_.min_median_flow_px)
-    return refuse(
-        r, fmt::format("median flow {:.2f} px < {:.1f} px (static camera)", r.median_flow_px, opt_.min_median_flow_px));
-
-  const double t_models = threadCpuMs();
-  const auto refuseTimed = [&](const std::string& why) {
-    r.models_cpu_ms = threadCpuMs() - t_models;
-    return refuse(r, why);
-  };
+std::optional<std::string> Initializer::reconstruct(const Frame& frame, const Points2d& x1, const Points2d& x2,
+                                                    InitializationResult& r) const {
   RansacOptions ro;
   ro.threshold_px = opt_.ransac_threshold_px;
   ro.seed = frame.id * 7919 + 17;
   ro.max_iterations = opt_.ransac_iterations;
   const ModelEstimate F = findFundamentalRansac(x1, x2, ro);
   const ModelEstimate H = findHomographyRansac(x1, x2, ro);
-  if (!F.valid && !H.valid) return refuseTimed("no fundamental or homography model found");
+  if (!F.valid && !H.valid) return "no fundamental or homography model found";
   r.homography_ratio = H.score / std::max(1e-12, H.score + F.score);
   const bool use_h = r.homography_ratio > opt_.homography_ratio;
   r.model = use_h ? "homography" : "fundamental";
   const Eigen::Matrix3d K = frame.camera.K();
-
-  // Pure rotation: the calibrated homography K^-1 H K is (a multiple of) a rotation.
-  if (use_h) {
-    const Eigen::Matrix3d Hn = K.inverse() * H.M * K;
-    Eigen::JacobiSVD<Eigen::Matrix3d> svd(Hn, Eigen::ComputeFullU | Eigen::ComputeFullV);
-    const Eigen::Vector3d sv = svd.singularValues() / svd.singularValues()(1);
-    Eigen::Matrix3d R = svd.matrixU() * svd.matrixV().transpose();
-    if (R.determinant() < 0) R = -R;
-    const Eigen::Matrix3d Ki = K.inverse();
-    std::vector<double> ang;
-    for (size_t i = 0; i < x1.size(); ++i) {
-      if (!H.inliers[i]) continue;
-      const Eigen::Vector3d a = (R * (Ki * x1[i].homogeneous())).normalized();
-      const Eigen::Vector3d b = (Ki * x2[i].homogeneous()).normalized();
-      ang.push_back(std::acos(std::clamp(a.dot(b), -1.0, 1.0)) * 180.0 / M_PI);
-    }
-    const double rot_parallax = median(ang);
-    if (sv(0) - 1.0 < 0.01 && 1.0 - sv(2) < 0.01 && rot_parallax < opt_.min_parallax_deg) {
-      r.parallax_deg = rot_parallax;
-      return refuseTimed(
-          fmt::format("pure rotation: homography is a rotation (singular values {:.3f} {:.3f} "
-                      "{:.3f}), parallax {:.2f}° < {:.1f}°",
-                      sv(0), sv(1), sv(2), rot_parallax, opt_.min_parallax_deg));
-    }
-  }
+  if (use_h)
+    if (auto why = pureRotation(H, K, x1, x2, opt_.min_parallax_deg, &r.parallax_deg)) return why;
 
   const ModelEstimate& M = use_h ? H : F;
   const double reproj_th = 2.0 * opt_.ransac_threshold_px;
@@ -180,37 +217,36 @@ InitializationResult Initializer::addFrame(const Frame& frame) {
                                    : reconstructFromFundamental(M.M, K, x1, x2, M.inliers, reproj_th);
   r.num_inliers = rec.num_good;
   r.parallax_deg = rec.parallax_deg;
-  if (rec.num_good < opt_.min_inliers)
-    return refuseTimed(fmt::format("inliers {} < {} ({} model, {} RANSAC inliers of {} tracks)", rec.num_good,
-                                   opt_.min_inliers, r.model, M.num_inliers, x1.size()));
-  if (rec.parallax_deg < opt_.min_parallax_deg)
-    return refuseTimed(
-        fmt::format("parallax {:.2f}° < {:.1f}° ({} model)", rec.parallax_deg, opt_.min_parallax_deg, r.model));
-  if (rec.num_good < opt_.min_good_fraction * M.num_inliers)
-    return refuseTimed(fmt::format("only {} of {} {} inliers triangulate in front of both cameras", rec.num_good,
-                                   M.num_inliers, r.model));
-  if (rec.second_best_good > 0.7 * rec.num_good)
-    return refuseTimed(fmt::format("ambiguous pose: runner-up candidate explains {} of {} points", rec.second_best_good,
-                                   rec.num_good));
+  if (auto why = weakReconstruction(rec, M, r.model, x1.size(), opt_)) return why;
 
   // Scale the map to median depth 1 in the reference camera.
   std::vector<double> depths;
   for (size_t i = 0; i < x1.size(); ++i)
     if (rec.good[i]) depths.push_back(rec.points[i].z());
   const double med_depth = median(depths);
-  if (!(med_depth > 0)) return refuseTimed("degenerate depth of the triangulated points");
+  if (!(med_depth > 0)) return "degenerate depth of the triangulated points";
   const double s = 1.0 / med_depth;
+  r.points = initialPoints(frame, rec, s);
+  // X_cur = R X_ref + t  ->  T_cur_ref = (R, t),  T_world_cur = T_cur_ref^-1 (world = reference).
+  r.T_world_ref = SE3();
+  r.T_world_cur = SE3(rec.pose.R, rec.pose.t * s).inverse();
+  r.success = true;
+  return std::nullopt;
+}
 
-  for (size_t i = 0; i < x1.size(); ++i) {
+std::vector<InitialPoint> Initializer::initialPoints(const Frame& frame, const Reconstruction& rec,
+                                                     double scale) const {
+  std::vector<InitialPoint> out;
+  for (size_t i = 0; i < rec.good.size(); ++i) {
     if (!rec.good[i]) continue;
     InitialPoint p;
-    p.p_world = rec.points[i] * s;
-    p.ref_feature = kept_idx[i];
-    p.uv_ref = Eigen::Vector2d(ref_.keypoints[static_cast<size_t>(p.ref_feature)].pt.x,
-                               ref_.keypoints[static_cast<size_t>(p.ref_feature)].pt.y);
-    p.uv_cur = Eigen::Vector2d(kept[i].x, kept[i].y);
+    p.p_world = rec.points[i] * scale;
+    p.ref_feature = track_ref_index_[i];
+    const cv::KeyPoint& ref_kp = ref_.keypoints[static_cast<size_t>(p.ref_feature)];
+    p.uv_ref = Eigen::Vector2d(ref_kp.pt.x, ref_kp.pt.y);
+    p.uv_cur = Eigen::Vector2d(prev_pts_[i].x, prev_pts_[i].y);
     // Nearest current keypoint of a similar level and descriptor.
-    const int ref_level = ref_.keypoints[static_cast<size_t>(p.ref_feature)].octave;
+    const int ref_level = ref_kp.octave;
     double best = 2.0 * 2.0;
     for (int j : frame.featuresInArea(p.uv_cur, 2.0, std::max(0, ref_level - 1), ref_level + 1)) {
       const cv::KeyPoint& k = frame.keypoints[static_cast<size_t>(j)];
@@ -221,16 +257,9 @@ InitializationResult Initializer::addFrame(const Frame& frame) {
         p.cur_feature = j;
       }
     }
-    r.points.push_back(p);
+    out.push_back(p);
   }
-  // X_cur = R X_ref + t  ->  T_cur_ref = (R, t),  T_world_cur = T_cur_ref^-1 (world = reference).
-  r.T_world_ref = SE3();
-  r.T_world_cur = SE3(rec.pose.R, rec.pose.t * s).inverse();
-  r.success = true;
-  r.models_cpu_ms = threadCpuMs() - t_models;
-  spdlog::info("initialised from frames {} -> {}: {} model (R_H {:.2f}), {} points, parallax {:.2f}°", r.ref_frame_id,
-               r.cur_frame_id, r.model, r.homography_ratio, r.points.size(), r.parallax_deg);
-  return r;
+  return out;
 }
 
 }  // namespace nerfslam

@@ -9,6 +9,8 @@
 #include <thread>
 #include <vector>
 
+#include "nerfslam/core/error.h"
+
 namespace nerfslam {
 namespace {
 
@@ -130,6 +132,48 @@ TEST(MappingThread, TasksRunOnTheMappingThreadInOrderAndAreNeverDropped) {
   bool late_ran = false;
   mt.submitTask([&] { late_ran = std::this_thread::get_id() == caller; });
   EXPECT_TRUE(late_ran);
+}
+
+// A caller that writes the map itself (the tracking thread making a new map) holds the thread:
+// hold() returns once the running job is done, the thread starts none while held (a submitted task
+// waits), and insertNow is refused while the thread runs without a hold.
+TEST(MappingThread, HoldWaitsForTheRunningJobAndKeepsTheThreadOffTheMap) {
+  Map map;
+  MappingThread mt(map, {}, 4);
+  mt.start();
+  KeyframeInsertion early;
+  early.frame = syntheticFrame(50, 1);
+  EXPECT_THROW(mt.insertNow(std::move(early), false), Error);
+  std::atomic<bool> started{false}, release{false}, finished{false}, queued_ran{false};
+  mt.submitTask([&] {
+    started = true;
+    while (!release) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    finished = true;
+  });
+  while (!started) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  std::thread releaser([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    release = true;
+  });
+  {
+    const MappingThread::Hold hold = mt.hold();
+    EXPECT_TRUE(finished);
+    releaser.join();
+    mt.submitTask([&] { queued_ran = true; });
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    EXPECT_FALSE(queued_ran);
+    KeyframeInsertion k;
+    k.frame = syntheticFrame(50, 2);
+    const KeyframeId id = mt.insertNow(std::move(k), false);
+    EXPECT_EQ(map.numKeyframes(), 1u);
+    EXPECT_TRUE(map.keyframe(id));
+  }
+  mt.waitIdle();
+  EXPECT_TRUE(queued_ran);
+  KeyframeInsertion late;
+  late.frame = syntheticFrame(50, 3);
+  EXPECT_THROW(mt.insertNow(std::move(late), false), Error);  // the hold is over
+  mt.stop();
 }
 
 }  // namespace

@@ -34,11 +34,13 @@
 #include "nerfslam/core/pose.h"
 #include "nerfslam/mapping/observation_map.h"
 #include "nerfslam/tracking/frame.h"
+#include "nerfslam/tracking/keyframe_vote.h"
+#include "nerfslam/tracking/local_map.h"
+#include "nerfslam/tracking/relocalizer.h"
 #include "nerfslam/tracking/tracker.h"
 
 namespace nerfslam {
 
-using KeyframeId = int64_t;
 using PointId = int64_t;
 using ObservationMap = SortedVectorMap<KeyframeId, int>;
 constexpr PointId kNoPoint = -1;
@@ -74,25 +76,6 @@ struct MapUpdate {
   std::vector<std::pair<PointId, Eigen::Vector3d>> point_positions;
   std::vector<std::pair<PointId, KeyframeId>> erase_observations;
   std::vector<PointId> erase_points;
-};
-
-// The tracking thread's local map: a reference keyframe, its best covisible keyframes and the points
-// they observe, as the tracker sees them (TrackingMapPoint::id is the PointId).
-struct TrackingLocalMap {
-  KeyframeId ref = -1;
-  std::vector<KeyframeId> keyframes;     // ref first, then by decreasing covisibility, then the newest
-  std::vector<SE3> keyframe_poses;       // T_world_cam of `keyframes`
-  std::vector<TrackingMapPoint> points;  // sorted by id
-  // Keyframes observing points[i]: observers[observer_begin[i] .. observer_begin[i + 1]).
-  std::vector<int> observer_begin;
-  std::vector<KeyframeId> observers;
-  std::vector<int> keyframe_num_points;  // map points each of `keyframes` observes
-  // Of those, the established ones: observed by 3 keyframes or more (2 while the map has two;
-  // ORB-SLAM's nMinObs). A point just triangulated from two keyframes is not yet.
-  std::vector<int> keyframe_num_established;
-  uint64_t structure_version = ~0ull;
-  uint64_t version = ~0ull;  // Map::version() of the last build or refresh
-  bool empty() const { return keyframes.empty(); }
 };
 
 // Time the calling thread spent waiting for the Map's lock (acquisitions that found it taken).
@@ -175,6 +158,13 @@ class Map {
   // Updates the keyframe poses and point positions of `m` (the lists stay as built). false, and `m`
   // unchanged, when wait = false and a writer holds the lock.
   bool refreshLocalMap(TrackingLocalMap* m, bool wait = true) const;
+  // Relocalisation's inputs, each in one shared-lock section. descriptorVoteTable(): every point with
+  // a descriptor, by id, and the keyframes observing it (tracking/keyframe_vote.h).
+  // relocalizationCandidates(): the keyframes of `order` still in the map, the first `max_candidates`
+  // of them in that order, each with the points it observes that have a descriptor (keypoint order).
+  DescriptorVoteTable descriptorVoteTable() const;
+  std::vector<RelocalizationCandidate> relocalizationCandidates(const std::vector<KeyframeId>& order,
+                                                                size_t max_candidates) const;
 
   // Lock-wait statistics of the calling thread, over all Map instances, since the thread started or
   // the last resetThreadLockWait().

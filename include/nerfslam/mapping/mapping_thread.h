@@ -60,8 +60,27 @@ class MappingThread {
   // the queue is full or stopped the task runs here, in the calling thread. idle() and waitIdle()
   // count it like a keyframe; an exception it throws is logged.
   void submitTask(std::function<void()> task);
-  // Inserts and processes a keyframe in the calling thread (initialisation, tests). Must not be
-  // called while the thread runs.
+  // Holds the thread between two jobs while the caller writes the map itself (a new map from the
+  // initialiser, with insertNow): waits until what was submitted before has been processed, then the
+  // thread starts nothing until the Hold is destroyed (submitted jobs wait for it). A no-op wait when
+  // the thread is idle, as it is before a map exists.
+  class Hold {
+   public:
+    Hold(Hold&& other) noexcept : owner_(other.owner_), lock_(std::move(other.lock_)) { other.owner_ = nullptr; }
+    Hold(const Hold&) = delete;
+    Hold& operator=(const Hold&) = delete;
+    Hold& operator=(Hold&&) = delete;
+    ~Hold();
+
+   private:
+    friend class MappingThread;
+    Hold(MappingThread* owner, std::unique_lock<std::mutex> lock) : owner_(owner), lock_(std::move(lock)) {}
+    MappingThread* owner_;
+    std::unique_lock<std::mutex> lock_;
+  };
+  [[nodiscard]] Hold hold();
+  // Inserts and processes a keyframe in the calling thread (initialisation, tests): before start(),
+  // after stop(), or under a hold(); throws an Error while the thread runs otherwise.
   KeyframeId insertNow(KeyframeInsertion kf, bool process = true);
   // No submitted keyframe waiting or being processed.
   bool idle() const;
@@ -89,6 +108,9 @@ class MappingThread {
   std::thread thread_;
   std::atomic<int> pending_{0};  // submitted, not yet processed
   std::atomic<bool> thread_running_{false};
+  // Held by the thread while it processes a job, and by a Hold (hold()) for as long as it lives.
+  std::mutex work_mutex_;
+  std::atomic<bool> held_{false};
   mutable std::mutex stats_mutex_;
   mutable std::condition_variable idle_cv_;
   std::vector<MappingStats> stats_;

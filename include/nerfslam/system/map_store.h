@@ -94,11 +94,4 @@ SystemOptions loadMapOptions(const std::filesystem::path& dir);
 // (relative tolerance 1e-9 on intrinsics and distortion).
 void checkSameCamera(const Camera& map_camera, const Camera& camera, const std::string& source);
 
-// Relocalisation in a loaded map, where the camera may be anywhere: up to `max_keyframes` keyframes
-// ranked by votes (each of up to `max_features` of the frame's descriptors votes for the keyframes
-// observing its nearest map point, Hamming distance <= `max_distance`), best first; keyframes without
-// votes are left out.
-std::vector<KeyframeId> keyframesByDescriptorVotes(const Map& map, const Frame& frame, int max_keyframes,
-                                                   int max_features = 600, int max_distance = 50);
-
 }  // namespace nerfslam

@@ -6,10 +6,17 @@
 //
 // Every tracked frame is stored relative to its reference keyframe, so the final trajectory follows
 // the keyframes' bundle-adjusted poses (trajectory()).
+//
+// The system wires the threads; what tracking decides lives in tracking/ (tracking_policy.h: weak
+// tracking, relocalisation candidates, the reference keyframe, the keyframe decision's geometry;
+// keyframe_vote.h: the vote of a lost camera). A new map is written by the tracking thread with the
+// mapping thread held (MappingThread::hold); its bundle adjustment and the frames between the two
+// initialisation frames then run on the mapping thread, and the next trackFrame() (or finish())
+// takes the result (pollInitialization).
 #include <atomic>
 #include <cstdint>
+#include <future>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -25,6 +32,7 @@
 #include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam/tracking/frame.h"
 #include "nerfslam/tracking/options.h"
+#include "nerfslam/tracking/tracking_policy.h"
 
 namespace nerfslam {
 
@@ -141,10 +149,10 @@ class SlamSystem {
   // The NeRF mapping thread (nullptr when options.nerf.enabled is false). finish() stops it.
   NerfMapping* nerf() { return nerf_.get(); }
   const NerfMapping* nerf() const { return nerf_.get(); }
-  const std::vector<FrameRecord>& records() const {
-    mergeDeferred();
-    return records_;
-  }
+  // One record per frame handed to trackFrame(). The frames between the two initialisation frames
+  // get their poses from the mapping thread: in records() and trajectory() from the first
+  // trackFrame() after it has tracked them (the next one in lock-step runs), or finish().
+  const std::vector<FrameRecord>& records() const { return records_; }
   // Tracked frames with poses resolved through their reference keyframes (current map).
   Trajectory trajectory() const;
   Trajectory keyframeTrajectory() const;
@@ -166,15 +174,40 @@ class SlamSystem {
   int64_t relocalizedAtFrame() const { return relocalized_at_frame_; }
 
  private:
+  // The mapping thread's result for a new map (initialize()), handed back through init_handoff_.
+  struct InitHandoff {
+    struct TrackedFrame {
+      uint64_t index = 0;
+      SE3 T_world_cam;
+      int num_inliers = 0;
+    };
+    KeyframeId reference = -1;  // the first keyframe, the frames' reference (-1: nothing to apply)
+    SE3 T_world_ref;            // its pose, T_world_cur the second keyframe's, after the bundle adjustment
+    SE3 T_world_cur;
+    std::vector<TrackedFrame> frames;  // the frames between the two initialisation frames that were tracked
+  };
+
+  // Before a map exists: the initialiser's attempt with this frame, and the map it makes.
+  void initializeFrom(const std::shared_ptr<const Frame>& frame, bool localize_only, FrameRecord& rec);
   bool initialize(const InitializationResult& r, const std::shared_ptr<const Frame>& frame, FrameRecord& rec);
+  // On the mapping thread (a task from initialize()): the new map's bundle adjustment, then the
+  // frames between the two initialisation frames tracked against it.
+  InitHandoff adjustNewMap(KeyframeId id0, KeyframeId id1, const std::vector<std::shared_ptr<const Frame>>& between,
+                           uint64_t ref_frame_id, uint64_t cur_frame_id);
+  // Applies the mapping thread's InitHandoff once it is ready (a no-op before and after): the poses
+  // of the frames between the two initialisation frames into records_, and, while no frame has been
+  // tracked against the map, the adjusted pose of the second keyframe to the tracker.
+  void pollInitialization();
+  // Once a map exists: tracking against the local map, relocalisation, the keyframe decision.
+  void trackAgainstMap(const std::shared_ptr<const Frame>& frame, bool localize_only, FrameRecord& rec);
+  // Relocalises a lost or weakly tracked frame; true when the relocalised pose replaced `res`.
+  bool relocalizeFrame(const Frame& frame, bool weak_retry, bool localize_only, TrackingResult& res, FrameRecord& rec);
+  void submitIfKeyframe(const std::shared_ptr<const Frame>& frame, const TrackingResult& res, bool localize_only,
+                        FrameRecord& rec);
+  WeakTrackingPolicy weakTrackingPolicy() const;
   void reset();
-  // Applies what the mapping thread finished for a new map (initialize()): poses of the frames
-  // between the two initialisation frames into records_, and the adjusted pose of the second
-  // keyframe into deferred_pose_. Called by the thread that tracks (records_ is its state).
-  void mergeDeferred() const;
   // `wait` = false: never waits for the map lock (the local map may then stay as it was).
   void buildLocalMap(KeyframeId ref, bool wait = true);
-  KeyframeId chooseReference(const std::vector<MapMatch>& matches) const;
 
   Camera camera_;
   SystemOptions opt_;
@@ -188,23 +221,9 @@ class SlamSystem {
   int initializations_ = 0, relocalizations_ = 0;
   std::string last_init_message_;
   std::string init_model_;
-  // mutable: mergeDeferred() completes it from the const accessors.
-  mutable std::vector<FrameRecord> records_;
-  // The mapping thread's result for a new map (see initialize()), handed over under deferred_mutex_.
-  struct DeferredFrame {
-    uint64_t index = 0;
-    SE3 T_world_cam;
-    int num_inliers = 0;
-  };
-  struct DeferredInitResult {
-    KeyframeId reference = -1;  // the first keyframe: the frames' reference
-    SE3 T_world_ref;            // its pose, T_world_cur the second keyframe's, after the bundle adjustment
-    SE3 T_world_cur;
-    std::vector<DeferredFrame> frames;
-  };
-  mutable std::mutex deferred_mutex_;
-  mutable std::optional<DeferredInitResult> deferred_;
-  mutable std::optional<SE3> deferred_pose_;
+  std::vector<FrameRecord> records_;
+  // Valid from initialize() until pollInitialization() has applied it.
+  std::future<InitHandoff> init_handoff_;
   bool tracked_since_init_ = false;  // a frame was tracked against the map since initialize()
   // Local map cache (buildLocalMap): rebuilt when the map's structure or the reference changes,
   // refreshed when BA moved poses and points, kept when the map's lock is taken (stale frames).
@@ -213,7 +232,6 @@ class SlamSystem {
   int64_t local_map_rebuilds_ = 0;
   int last_inliers_ = 0;  // inliers of the last tracked frame (0: the last frame was not tracked)
   KeyframeId reference_ = -1;
-  std::vector<MapMatch> last_matches_;
   std::vector<std::shared_ptr<const Frame>> pre_init_frames_;  // tracked retroactively after initialisation
   int frames_since_keyframe_ = 0;
   // Pose of the last keyframe this thread made: it counts for the stopped-camera rule before the

@@ -6,6 +6,7 @@
 // triangulated and the map scaled so the median depth in the reference camera is 1.
 // Refusals (static camera, pure rotation, too little parallax, too few inliers, ambiguous
 // solution) come back with success = false and a human-readable reason, also logged at info level.
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -14,6 +15,7 @@
 #include "nerfslam/core/options.h"
 #include "nerfslam/core/pose.h"
 #include "nerfslam/tracking/frame.h"
+#include "nerfslam/tracking/two_view_geometry.h"
 
 namespace nerfslam {
 
@@ -87,6 +89,17 @@ class Initializer {
   const Frame& reference() const { return ref_; }
 
  private:
+  // The steps of addFrame: a new reference (its corners to track, evenly thinned); KLT of the live
+  // tracks into `frame` with a forward-backward check (prev_pts_ and track_ref_index_ become the
+  // tracks that survive); the two-view models, the pose and the triangulated points from the ideal
+  // pixels x1 (reference) <-> x2 (frame) of those tracks, into `r` (or why not); the initial points
+  // with their nearest keypoints in `frame`.
+  InitializationResult setReference(const Frame& frame, InitializationResult r);
+  void trackCorners(const Frame& frame);
+  std::optional<std::string> reconstruct(const Frame& frame, const Points2d& x1, const Points2d& x2,
+                                         InitializationResult& r) const;
+  std::vector<InitialPoint> initialPoints(const Frame& frame, const Reconstruction& rec, double scale) const;
+
   InitializerOptions opt_;
   bool has_ref_ = false;
   Frame ref_;
