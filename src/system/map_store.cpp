@@ -26,9 +26,6 @@ using nlohmann::json;
 
 namespace {
 
-// For keyframesByDescriptorVotes (relocalisation; it moves to tracking/).
-constexpr int kDescriptorBytes = map_detail::kDescriptorBytes;
-
 // The previous generation's entry of an image with the same keyframe, size and pixels, when its
 // file is still there with the listed size; else null.
 const MapFileEntry* reusableImage(const fs::path& dir, const std::optional<MapManifest>& prev, const MapFileEntry& e) {
