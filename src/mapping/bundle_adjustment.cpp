@@ -6,9 +6,9 @@
 
 #include <algorithm>
 #include <array>
-#include <deque>
 #include <chrono>
 #include <cmath>
+#include <deque>
 #include <limits>
 
 #include "nerfslam/core/error.h"

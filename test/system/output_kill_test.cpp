@@ -139,9 +139,9 @@ TEST(OutputKill, EveryWriterSurvivesSigkill) {
   int kills = 0, temp_left = 0;
   for (int it = 0; it < 50; ++it) {
     const double after = when(rng);
-    const auto r = test::runCommand(fmt::format("{}='{}' timeout -s KILL {:.3f} '{}' --gtest_filter={}", kEnv,
-                                                tmp.path().string(), after, self.string(),
-                                                "OutputKillHelper.WriteLoopChild"));
+    const auto r =
+        test::runCommand(fmt::format("{}='{}' timeout -s KILL {:.3f} '{}' --gtest_filter={}", kEnv, tmp.path().string(),
+                                     after, self.string(), "OutputKillHelper.WriteLoopChild"));
     ASSERT_EQ(r.exit_code, 128 + 9) << "the helper was expected to be killed after " << after << " s: " << r.output;
     ++kills;
     for (const auto& [name, which] : files) {

@@ -25,7 +25,7 @@ struct RunOptions {
   std::filesystem::path out;
   std::size_t max_frames = 0;  // 0: all
   bool realtime = false;
-  bool nerf = true;  // false: SystemOptions::nerf.enabled = false (--no-nerf)
+  bool nerf = true;                     // false: SystemOptions::nerf.enabled = false (--no-nerf)
   bool progress = true;                 // progress line on stderr
   std::optional<SystemOptions> system;  // used instead of defaults + config when set (tests)
   // Saved maps (system/map_store.h). `map`: start from this map folder in `map_mode` (kLocalize or
