@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Runs clang-tidy (the repository's .clang-tidy) on the C++ files changed against a base ref: the
 # files a branch touches, committed or not. A changed header is checked through its own source file
-# (include/nerfslam/M/X.h -> src/M/X.cpp) when there is one. Compile flags come from
+# (include/nerfslam/M/X.h -> src/M/X.cpp) when there is one; findings are reported in the changed
+# files only, not in the unchanged headers they include. Compile flags come from
 # BUILD/compile_commands.json (written by every CMake configure of this project); files the build
 # does not compile (e.g. apps/ros without ROS) are skipped with a note. Fails when clang-tidy reports
-# anything in our own files.
+# anything in those files.
 # Usage: scripts/tidy.sh [--base REF] [--build DIR] [--fix] [--list] [FILE...]
 #   --base REF   compare against REF (default: origin/main if it exists, else main)
 #   --build DIR  build directory with compile_commands.json (default: build)
@@ -55,23 +56,37 @@ if [ "${#files[@]}" -eq 0 ]; then
   mb=$(git merge-base "$base" HEAD) || { echo "tidy.sh: no merge base between '$base' and HEAD" >&2; exit 2; }
   # Against the merge base, so that what landed on the base since is not ours; the working tree
   # is included (uncommitted changes count).
-  mapfile -t changed < <(git diff --name-only --diff-filter=d "$mb" -- src include apps test tools |
+  mapfile -t files < <(git diff --name-only --diff-filter=d "$mb" -- src include apps test tools |
     grep -E '\.(h|hpp|cc|cpp)$' || true)
-  for f in "${changed[@]}"; do
-    case "$f" in
-      include/nerfslam/*.h)
-        src=${f#include/nerfslam/}
-        src=src/${src%.h}.cpp
-        [ -f "$src" ] && files+=("$src") ;;
-      *.h | *.hpp)
-        stem=${f%.*}
-        for e in cpp cc; do [ -f "$stem.$e" ] && files+=("$stem.$e"); done ;;
-      *) files+=("$f") ;;
-    esac
-  done
-  echo "tidy.sh: ${#changed[@]} C++ file(s) changed against $base ($(git rev-parse --short "$mb"))"
+  echo "tidy.sh: ${#files[@]} C++ file(s) changed against $base ($(git rev-parse --short "$mb"))"
 fi
-mapfile -t files < <(printf '%s\n' "${files[@]}" | sed '/^$/d' | sort -u)
+# Sources are checked themselves, headers through their own source file; findings are reported in
+# those files only (--header-filter: exactly the headers named), not in every header they include.
+sources=()
+headers=()
+for f in "${files[@]}"; do
+  case "$f" in
+    include/nerfslam/*.h)
+      headers+=("$f")
+      src=${f#include/nerfslam/}
+      src=src/${src%.h}.cpp
+      if [ -f "$src" ]; then sources+=("$src"); else echo "tidy.sh: $f has no source of its own:" \
+        "checked only through the changed sources that include it"; fi ;;
+    *.h | *.hpp)
+      headers+=("$f")
+      stem=${f%.*}
+      own=0
+      for e in cpp cc; do [ -f "$stem.$e" ] && { sources+=("$stem.$e"); own=1; }; done
+      [ "$own" = 1 ] || echo "tidy.sh: $f has no source of its own: checked only through the changed" \
+        "sources that include it" ;;
+    *) sources+=("$f") ;;
+  esac
+done
+mapfile -t files < <(printf '%s\n' "${sources[@]}" | sed '/^$/d' | sort -u)
+header_filter='^$'
+if [ "${#headers[@]}" -gt 0 ]; then
+  header_filter="^($(printf '%s\n' "${headers[@]}" | sed "s|^|$root/|; s|[.+]|\\\\&|g" | paste -sd'|'))\$"
+fi
 
 # Only what the build compiles has flags.
 compiled=()
@@ -88,6 +103,7 @@ if [ "${#compiled[@]}" -eq 0 ]; then
 fi
 if [ "$list" = 1 ]; then
   printf '%s\n' "${compiled[@]}"
+  [ "${#headers[@]}" -eq 0 ] || printf 'findings also in: %s\n' "${headers[@]}"
   exit 0
 fi
 
@@ -96,7 +112,8 @@ echo "tidy.sh: $tidy on ${#compiled[@]} file(s), $jobs at a time"
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 printf '%s\n' "${compiled[@]}" |
-  xargs -P "$jobs" -I{} "$tidy" -p "$build" --quiet "${fix[@]}" {} 2>/dev/null | tee "$log" || true
+  xargs -P "$jobs" -I{} "$tidy" -p "$build" --quiet --header-filter="$header_filter" "${fix[@]}" {} 2>/dev/null |
+  tee "$log" || true
 # A header's finding is reported by every file that includes it: count each once.
 findings=$(grep -E '^[^ ]+:[0-9]+:[0-9]+: (warning|error):' "$log" | sort -u || true)
 if [ -n "$findings" ]; then
