@@ -14,7 +14,7 @@ for a in "$@"; do
 done
 
 BUILD_PKGS=(
-  build-essential cmake ninja-build pkg-config git clang-format ccache
+  build-essential cmake ninja-build pkg-config git clang-format clang-tidy ccache
   libeigen3-dev libopencv-dev libceres-dev libpcl-dev
   libosmesa6-dev libhwy-dev
   libcli11-dev libyaml-cpp-dev libspdlog-dev libfmt-dev nlohmann-json3-dev

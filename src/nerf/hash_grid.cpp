@@ -174,7 +174,7 @@ HWY_INLINE void GatherPass(const float* t, size_t m, size_t padded, const BlockS
   const size_t N = hn::Lanes(df);
   const hn::Repartition<uint64_t, decltype(df)> d64;  // N/2 lanes
   const hn::Rebind<uint32_t, decltype(d64)> d32h;     // N/2 lanes of uint32
-  const hn::Rebind<float, decltype(d64)> dfh;       // N/2 lanes of float
+  const hn::Rebind<float, decltype(d64)> dfh;         // N/2 lanes of float
   const hn::RebindToSigned<decltype(d64)> di64;
   const uint64_t* t64 = reinterpret_cast<const uint64_t*>(t);
   HWY_ALIGN float tmp0[HWY_MAX_BYTES / 4], tmp1[HWY_MAX_BYTES / 4];
@@ -236,8 +236,8 @@ void HashEncodeImpl(const HashGridView& grid, const float* pos, size_t n, float*
     for (int l = 0; l < std::min(kAhead, L); ++l) index(l);
     for (int l = 0; l < L; ++l) {
       if (l + kAhead < L) index(l + kAhead);
-      GatherPass(grid.table + 2 * size_t(grid.levels[l].offset), m, padded, b, l % kRing,
-                 enc + size_t(2 * l) * ld + s0, enc + size_t(2 * l + 1) * ld + s0);
+      GatherPass(grid.table + 2 * size_t(grid.levels[l].offset), m, padded, b, l % kRing, enc + size_t(2 * l) * ld + s0,
+                 enc + size_t(2 * l + 1) * ld + s0);
     }
   }
 }

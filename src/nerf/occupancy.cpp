@@ -109,7 +109,8 @@ void OccupancyGrid::rebuildCoarse() {
             uint64_t word = b[row + uint32_t(wx)];
             while (word) {
               const int x = wx * 64 + __builtin_ctzll(word);
-              const size_t i = size_t(m) * per + size_t(x >> sh) + size_t(r) * (size_t(y >> sh) + size_t(r) * size_t(z >> sh));
+              const size_t i =
+                  size_t(m) * per + size_t(x >> sh) + size_t(r) * (size_t(y >> sh) + size_t(r) * size_t(z >> sh));
               c[i / 64] |= uint64_t(1) << (i % 64);
               // Skip the rest of this block's cells in the word.
               const int next = ((x >> sh) + 1) << sh;

@@ -7,9 +7,9 @@
 #include <set>
 #include <sstream>
 
+#include <spdlog/spdlog.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <spdlog/spdlog.h>
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"

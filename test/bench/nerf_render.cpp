@@ -108,14 +108,22 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (a == "--model") model_path = next();
-    else if (a == "--transforms") transforms = next();
-    else if (a == "--views") views_arg = next();
-    else if (a == "--reps") reps = std::atoi(next().c_str());
-    else if (a == "--threads") threads = std::atoi(next().c_str());
-    else if (a == "--size") size = next();
-    else if (a == "--no-normals-run") normals_run = false;
-    else if (a == "--stats") stats = true;
+    if (a == "--model")
+      model_path = next();
+    else if (a == "--transforms")
+      transforms = next();
+    else if (a == "--views")
+      views_arg = next();
+    else if (a == "--reps")
+      reps = std::atoi(next().c_str());
+    else if (a == "--threads")
+      threads = std::atoi(next().c_str());
+    else if (a == "--size")
+      size = next();
+    else if (a == "--no-normals-run")
+      normals_run = false;
+    else if (a == "--stats")
+      stats = true;
     else {
       std::fprintf(stderr, "unknown argument %s\n", a.c_str());
       return 2;

@@ -47,8 +47,9 @@ Pass runPass(const Camera& camera, const std::vector<render::SynthFrame>& frames
   Pass p;
   const auto start = std::chrono::steady_clock::now();
   for (size_t i = 0; i < frames.size(); ++i) {
-    std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                              std::chrono::duration<double>(frames[i].timestamp - frames[0].timestamp)));
+    std::this_thread::sleep_until(start +
+                                  std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                      std::chrono::duration<double>(frames[i].timestamp - frames[0].timestamp)));
     const auto t0 = std::chrono::steady_clock::now();
     const double c0 = threadCpuMs();
     const FrameRecord r = slam.trackFrame(frames[i].bgr, frames[i].timestamp, i);
@@ -79,10 +80,11 @@ void BM_TrackingWithNerf(benchmark::State& state) {
     nerf = runPass(seq.camera(), frames, true);
   }
   auto print = [](const char* name, const Pass& p) {
-    std::printf("%-7s %zu timed frames (%d tracked) | tracking wall median %.1f p99 %.1f ms | thread CPU median %.1f "
-                "p99 %.1f ms\n",
-                name, p.wall_ms.size(), p.tracked, percentile(p.wall_ms, 0.5), percentile(p.wall_ms, 0.99),
-                percentile(p.cpu_ms, 0.5), percentile(p.cpu_ms, 0.99));
+    std::printf(
+        "%-7s %zu timed frames (%d tracked) | tracking wall median %.1f p99 %.1f ms | thread CPU median %.1f "
+        "p99 %.1f ms\n",
+        name, p.wall_ms.size(), p.tracked, percentile(p.wall_ms, 0.5), percentile(p.wall_ms, 0.99),
+        percentile(p.cpu_ms, 0.5), percentile(p.cpu_ms, 0.99));
   };
   print("sparse", sparse);
   print("nerf", nerf);

@@ -84,11 +84,11 @@ TEST(TrainerOnline, PosesAndWeightsAreValidated) {
   EXPECT_THROW(t.setViewPose(2, p), Error);
   const SE3 nan(Eigen::Quaterniond::Identity(), Eigen::Vector3d(std::numeric_limits<double>::quiet_NaN(), 0, 0));
   EXPECT_THROW(t.setViewPose(0, nan), Error);
-  EXPECT_THROW(t.setViewWeights({1.0}), Error);             // one per view
-  EXPECT_THROW(t.setViewWeights({0.0, 0.0}), Error);        // not all zero
-  EXPECT_THROW(t.setViewWeights({-1.0, 2.0}), Error);       // non-negative
+  EXPECT_THROW(t.setViewWeights({1.0}), Error);        // one per view
+  EXPECT_THROW(t.setViewWeights({0.0, 0.0}), Error);   // not all zero
+  EXPECT_THROW(t.setViewWeights({-1.0, 2.0}), Error);  // non-negative
   EXPECT_THROW(t.setViewWeights({std::nan(""), 1.0}), Error);
-  EXPECT_NO_THROW(t.setViewWeights({}));                    // uniform
+  EXPECT_NO_THROW(t.setViewWeights({}));  // uniform
 }
 
 TEST(TrainerOnline, RaysFollowTheWeightsAndLossesArePerView) {

@@ -186,8 +186,8 @@ TEST(NerfMapping, FollowsPosesThatBundleAdjustmentChanges) {
   // A keyframe culled with a parent keeps its image, with the pose resolved through the parent.
   const SE3 T_parent_kf = fx.map->keyframe(1)->T_world_cam.inverse() * fx.map->keyframe(3)->T_world_cam;
   fx.map->eraseKeyframe(3, 1);
-  fx.map->setKeyframePose(1, SE3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0.2, 0)) *
-                                 fx.map->keyframe(1)->T_world_cam);
+  fx.map->setKeyframePose(
+      1, SE3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0.2, 0)) * fx.map->keyframe(1)->T_world_cam);
   nm.trainFor(0, 1);
   const SE3 expect = fx.map->keyframe(1)->T_world_cam * T_parent_kf;
   EXPECT_LT((nm.viewPoses()[3].translation() - expect.translation()).norm(), 1e-9);
