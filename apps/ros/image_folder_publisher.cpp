@@ -1,40 +1,9 @@
 // image_folder_publisher: plays any dataset nerfslam reads (image folder, TUM, EuRoC, KITTI,
-// transforms.json, Middlebury, Strecha, New Tsukuba) as a ROS camera.
-//
-// Publishes (in the node's namespace)
-//   image               sensor_msgs/Image through image_transport (mono8, or bgr8 with ~color)
-//   camera_info         sensor_msgs/CameraInfo, same header as the image (image_transport CameraPublisher)
-//   ground_truth_path   nav_msgs/Path (latched), with ~publish_ground_truth and a dataset that has it
-//   /tf                 ~gt_parent_frame -> ~gt_child_frame per frame, with ~publish_ground_truth
-//
-// Parameters (private, all optional except ~dataset; printed at start-up and validated: a bad value
-// or an unreadable dataset is a ROS_FATAL naming the reason, and the node exits with status 1)
-//   ~dataset               string  "[kind:]PATH", kind one of folder tum euroc kitti transforms
-//                                  middlebury strecha tsukuba (detected from the layout when omitted)
-//   ~camera                string  camera YAML (ours or a ROS camera_info YAML) replacing the
-//                                  dataset's calibration; ""  = the dataset's own             (default "")
-//   ~rate                  double  frames per second; 0 = at the dataset's timestamps        (default 0)
-//   ~speed                 double  playback speed factor when ~rate is 0, > 0                 (default 1)
-//   ~loop                  bool    start over after the last frame                           (default false)
-//   ~frame_id              string  header.frame_id of image and camera_info  (default camera_optical_frame)
-//   ~start                 int     frames skipped at the beginning, >= 0                     (default 0)
-//   ~max_frames            int     publish at most this many frames per pass, 0 = all        (default 0)
-//   ~color                 bool    publish bgr8 instead of mono8                              (default false)
-//   ~use_dataset_stamps    bool    header.stamp = dataset timestamp instead of ros::Time::now()
-//                                  at publication (not with ~loop; a frame at t = 0 gets a
-//                                  zero stamp, which ROS reads as "no time")                  (default false)
-//   ~publish_ground_truth  bool    publish ground truth as tf and nav_msgs/Path               (default false)
-//   ~gt_parent_frame       string  parent frame of the ground truth                           (default world)
-//   ~gt_child_frame        string  child frame of the ground-truth camera pose (default camera_ground_truth)
-//   ~wait_for_subscribers  bool    hold the first frame until image and camera_info have a
-//                                  subscriber (for tests and recording)                       (default false)
-//   ~min_subscribers       int     with ~wait_for_subscribers: that many image subscribers
-//                                  (several nodes fed the same frames), then up to 5 s for
-//                                  their camera_info connections, >= 1                      (default 1)
-//   ~exit_when_done        bool    exit after the last frame (and 1 s for it to be sent)
-//                                  instead of idling                                          (default false)
-// A frame whose image cannot be decoded is reported (ROS_ERROR naming the file) and skipped.
-// A restarted master is detected and the topics registered with it again (master_watch.h).
+// transforms.json, Middlebury, Strecha, New Tsukuba) as a ROS camera: image + camera_info, and the
+// ground truth on tf and ground_truth_path. Topics and parameters: docs/ros.md
+// ("image_folder_publisher"). A bad parameter or an unreadable dataset is a ROS_FATAL naming the
+// reason (exit status 1); a frame that cannot be decoded is reported and skipped; a restarted master
+// is detected and the topics registered with it again (master_watch.h).
 #include <algorithm>
 #include <cmath>
 #include <memory>
@@ -184,6 +153,123 @@ void printParams(const Params& p) {
   ROS_INFO("  ~exit_when_done       = %s", p.exit_when_done ? "true" : "false");
 }
 
+// The topics the dataset is played on.
+struct Outputs {
+  image_transport::Publisher image;
+  ros::Publisher info, path;
+  std::unique_ptr<tf2_ros::TransformBroadcaster> tf;
+  nav_msgs::Path gt_path;
+};
+
+// The dataset, or null after a ROS_FATAL saying why.
+std::unique_ptr<nerfslam::Dataset> openDataset(const Params& p) {
+  nerfslam::DatasetOptions opts;
+  if (!p.camera.empty()) opts.camera_override = p.camera;
+  opts.start = static_cast<size_t>(p.start);
+  opts.max_frames = static_cast<size_t>(p.max_frames);
+  std::unique_ptr<nerfslam::Dataset> ds;
+  try {
+    ds = nerfslam::openDataset(p.dataset, opts);
+  } catch (const std::exception& e) {
+    ROS_FATAL("cannot open dataset '%s': %s", p.dataset.c_str(), e.what());
+    return nullptr;
+  }
+  if (ds->size() == 0) {
+    ROS_FATAL("dataset '%s' has no frames after ~start=%d", p.dataset.c_str(), p.start);
+    return nullptr;
+  }
+  ROS_INFO("dataset: %s (%s), %zu frames, %s ground truth; camera %s", ds->root().c_str(), ds->kind().c_str(),
+           ds->size(), ds->hasGroundTruth() ? "with" : "without", ds->camera().describe().c_str());
+  if (p.publish_ground_truth && !ds->hasGroundTruth())
+    ROS_WARN("~publish_ground_truth is set but the dataset has no ground truth: nothing will be published on tf");
+  return ds;
+}
+
+// ~wait_for_subscribers: ~min_subscribers on the image, then their camera_info connections.
+void waitForSubscribers(const Params& p, const Outputs& out) {
+  ROS_INFO("waiting for %d subscriber(s) on %s and %s", p.min_subscribers, out.image.getTopic().c_str(),
+           out.info.getTopic().c_str());
+  const auto min_subscribers = static_cast<uint32_t>(p.min_subscribers);
+  while (ros::ok() && out.image.getNumSubscribers() < min_subscribers) ros::WallDuration(0.02).sleep();
+  // Then the camera_info connections: a subscriber that pairs the two topics (camera subscribers
+  // do) would otherwise miss the first frames when its camera_info connection completes after its
+  // image connection (on a loaded machine, seconds later). As many as the master lists for
+  // camera_info, but no more than the image has (subscribers of the image alone, viewers and
+  // tests, do not hold it back), and at most kInfoWaitSeconds: a node killed without
+  // unregistering stays listed.
+  const ros::WallTime info_deadline = ros::WallTime::now() + ros::WallDuration(kInfoWaitSeconds);
+  auto info_ready = [&] {
+    const uint32_t wanted = std::min(registeredSubscribers(out.info.getTopic()), out.image.getNumSubscribers());
+    return out.info.getNumSubscribers() >= wanted;
+  };
+  while (ros::ok() && !info_ready() && ros::WallTime::now() < info_deadline) ros::WallDuration(0.02).sleep();
+  if (!info_ready())
+    ROS_WARN("%u of the %u subscribers the master lists for %s connected within %g s; publishing anyway",
+             out.info.getNumSubscribers(), registeredSubscribers(out.info.getTopic()), out.info.getTopic().c_str(),
+             kInfoWaitSeconds);
+}
+
+// Publishes frame `i` (image, camera_info, ground truth) with header.seq `seq`.
+void publishFrame(const Params& p, const nerfslam::Camera& camera, const nerfslam::DatasetFrame& frame, size_t i,
+                  uint32_t seq, Outputs& out) {
+  std_msgs::Header header;
+  header.frame_id = p.frame_id;
+  header.stamp = p.use_dataset_stamps ? ros::Time(frame.timestamp) : ros::Time::now();
+  if (p.use_dataset_stamps && header.stamp.isZero())
+    ROS_WARN_ONCE(
+        "frame %zu has timestamp 0: ROS treats a zero stamp as 'no time' (tf returns the latest "
+        "transform); use ~start to skip it or leave ~use_dataset_stamps off",
+        i);
+  header.seq = seq;
+  sensor_msgs::ImagePtr img = nerfslam::rosbridge::toImageMsg(frame.image, header);
+  sensor_msgs::CameraInfoPtr info =
+      boost::make_shared<sensor_msgs::CameraInfo>(nerfslam::rosbridge::toCameraInfo(camera, header));
+  out.image.publish(img);
+  out.info.publish(info);
+  if (p.publish_ground_truth && frame.T_world_cam) {
+    out.tf->sendTransform(
+        nerfslam::rosbridge::toTransformStamped(*frame.T_world_cam, p.gt_parent_frame, p.gt_child_frame, header.stamp));
+    geometry_msgs::PoseStamped ps;
+    ps.header.frame_id = p.gt_parent_frame;
+    ps.header.stamp = header.stamp;
+    ps.pose = nerfslam::rosbridge::toPose(*frame.T_world_cam);
+    out.gt_path.poses.push_back(ps);
+    out.gt_path.header.stamp = header.stamp;
+    out.path.publish(out.gt_path);
+  }
+}
+
+struct Playback {
+  size_t published = 0, skipped = 0, slot = 0;
+};
+
+// One pass over the dataset, each frame at its wall-clock deadline from t0: with ~rate the slots
+// count across passes (a skipped frame keeps its slot); with the timestamps the clock restarts
+// every pass.
+void playPass(const Params& p, nerfslam::Dataset& ds, ros::WallTime t0, Outputs& out, Playback& pb) {
+  const nerfslam::ImageMode mode = p.color ? nerfslam::ImageMode::kColor : nerfslam::ImageMode::kGray;
+  const double t_first = ds.timestamp(0);
+  for (size_t i = 0; i < ds.size() && ros::ok(); ++i) {
+    nerfslam::DatasetFrame frame;
+    try {
+      frame = ds.load(i, mode);
+    } catch (const std::exception& e) {
+      ROS_ERROR("skipping frame %zu: %s", i, e.what());
+      ++pb.skipped;
+      ++pb.slot;
+      continue;
+    }
+    const double offset = p.rate > 0.0 ? static_cast<double>(pb.slot) / p.rate : (frame.timestamp - t_first) / p.speed;
+    ++pb.slot;
+    const ros::WallDuration wait = t0 + ros::WallDuration(offset) - ros::WallTime::now();
+    if (wait > ros::WallDuration(0)) wait.sleep();
+    if (!ros::ok()) break;
+    publishFrame(p, ds.camera(), frame, i, static_cast<uint32_t>(pb.published), out);
+    ++pb.published;
+    ros::spinOnce();
+  }
+}
+
 int run(int argc, char** argv) {
   ros::init(argc, argv, "image_folder_publisher");
   ros::NodeHandle nh;
@@ -194,138 +280,46 @@ int run(int argc, char** argv) {
     ROS_FATAL("%s", why.c_str());
     return 1;
   }
-
-  nerfslam::DatasetOptions opts;
-  if (!p.camera.empty()) opts.camera_override = p.camera;
-  opts.start = static_cast<size_t>(p.start);
-  opts.max_frames = static_cast<size_t>(p.max_frames);
-  std::unique_ptr<nerfslam::Dataset> ds;
-  try {
-    ds = nerfslam::openDataset(p.dataset, opts);
-  } catch (const std::exception& e) {
-    ROS_FATAL("cannot open dataset '%s': %s", p.dataset.c_str(), e.what());
-    return 1;
-  }
-  if (ds->size() == 0) {
-    ROS_FATAL("dataset '%s' has no frames after ~start=%d", p.dataset.c_str(), p.start);
-    return 1;
-  }
-  const nerfslam::Camera& camera = ds->camera();
-  ROS_INFO("dataset: %s (%s), %zu frames, %s ground truth; camera %s", ds->root().c_str(), ds->kind().c_str(),
-           ds->size(), ds->hasGroundTruth() ? "with" : "without", camera.describe().c_str());
-  if (p.publish_ground_truth && !ds->hasGroundTruth())
-    ROS_WARN("~publish_ground_truth is set but the dataset has no ground truth: nothing will be published on tf");
+  const std::unique_ptr<nerfslam::Dataset> ds = openDataset(p);
+  if (!ds) return 1;
 
   image_transport::ImageTransport it(nh);
+  Outputs out;
   // The image and its camera_info on two publishers, so that ~wait_for_subscribers can wait for
   // each topic's connections. camera_info is named from the resolved image topic, as
   // image_transport's CameraPublisher does (image:=/cam/image gives /cam/camera_info).
-  image_transport::Publisher image_pub = it.advertise("image", 10);
-  ros::Publisher info_pub =
-      nh.advertise<sensor_msgs::CameraInfo>(image_transport::getCameraInfoTopic(image_pub.getTopic()), 10);
-  ros::Publisher path_pub;
-  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_pub;
-  nav_msgs::Path gt_path;
-  gt_path.header.frame_id = p.gt_parent_frame;
+  out.image = it.advertise("image", 10);
+  out.info = nh.advertise<sensor_msgs::CameraInfo>(image_transport::getCameraInfoTopic(out.image.getTopic()), 10);
+  out.gt_path.header.frame_id = p.gt_parent_frame;
   if (p.publish_ground_truth) {
-    path_pub = nh.advertise<nav_msgs::Path>("ground_truth_path", 1, /*latch=*/true);
-    tf_pub = std::make_unique<tf2_ros::TransformBroadcaster>();
+    out.path = nh.advertise<nav_msgs::Path>("ground_truth_path", 1, /*latch=*/true);
+    out.tf = std::make_unique<tf2_ros::TransformBroadcaster>();
   }
   // Registers the topics again with a restarted master (docs/ros.md, "Faults").
   const nerfslam::rosnode::MasterWatch master_watch;
+  if (p.wait_for_subscribers) waitForSubscribers(p, out);
 
-  if (p.wait_for_subscribers) {
-    ROS_INFO("waiting for %d subscriber(s) on %s and %s", p.min_subscribers, image_pub.getTopic().c_str(),
-             info_pub.getTopic().c_str());
-    const auto min_subscribers = static_cast<uint32_t>(p.min_subscribers);
-    while (ros::ok() && image_pub.getNumSubscribers() < min_subscribers) ros::WallDuration(0.02).sleep();
-    // Then the camera_info connections: a subscriber that pairs the two topics (camera subscribers
-    // do) would otherwise miss the first frames when its camera_info connection completes after its
-    // image connection (on a loaded machine, seconds later). As many as the master lists for
-    // camera_info, but no more than the image has (subscribers of the image alone, viewers and
-    // tests, do not hold it back), and at most kInfoWaitSeconds: a node killed without
-    // unregistering stays listed.
-    const ros::WallTime info_deadline = ros::WallTime::now() + ros::WallDuration(kInfoWaitSeconds);
-    auto info_ready = [&] {
-      const uint32_t wanted = std::min(registeredSubscribers(info_pub.getTopic()), image_pub.getNumSubscribers());
-      return info_pub.getNumSubscribers() >= wanted;
-    };
-    while (ros::ok() && !info_ready() && ros::WallTime::now() < info_deadline) ros::WallDuration(0.02).sleep();
-    if (!info_ready())
-      ROS_WARN("%u of the %u subscribers the master lists for %s connected within %g s; publishing anyway",
-               info_pub.getNumSubscribers(), registeredSubscribers(info_pub.getTopic()), info_pub.getTopic().c_str(),
-               kInfoWaitSeconds);
-  }
-
-  const nerfslam::ImageMode mode = p.color ? nerfslam::ImageMode::kColor : nerfslam::ImageMode::kGray;
-  const double t_first = ds->timestamp(0);
   ros::WallTime t0 = ros::WallTime::now();
-  size_t published = 0, skipped = 0, pass = 0, slot = 0;
+  Playback pb;
+  size_t pass = 0;
   while (ros::ok()) {
-    const size_t published_before = published;
-    for (size_t i = 0; i < ds->size() && ros::ok(); ++i) {
-      nerfslam::DatasetFrame frame;
-      try {
-        frame = ds->load(i, mode);
-      } catch (const std::exception& e) {
-        ROS_ERROR("skipping frame %zu: %s", i, e.what());
-        ++skipped;
-        ++slot;
-        continue;
-      }
-      // When this frame is due: rate mode counts slots across passes (a skipped frame keeps its
-      // slot); timestamp mode restarts the clock every pass.
-      const double offset = p.rate > 0.0 ? static_cast<double>(slot) / p.rate : (frame.timestamp - t_first) / p.speed;
-      ++slot;
-      const ros::WallTime due = t0 + ros::WallDuration(offset);
-      const ros::WallDuration wait = due - ros::WallTime::now();
-      if (wait > ros::WallDuration(0)) wait.sleep();
-      if (!ros::ok()) break;
-
-      std_msgs::Header header;
-      header.frame_id = p.frame_id;
-      header.stamp = p.use_dataset_stamps ? ros::Time(frame.timestamp) : ros::Time::now();
-      if (p.use_dataset_stamps && header.stamp.isZero())
-        ROS_WARN_ONCE(
-            "frame %zu has timestamp 0: ROS treats a zero stamp as 'no time' (tf returns the latest "
-            "transform); use ~start to skip it or leave ~use_dataset_stamps off",
-            i);
-      header.seq = static_cast<uint32_t>(published);
-      sensor_msgs::ImagePtr img = nerfslam::rosbridge::toImageMsg(frame.image, header);
-      sensor_msgs::CameraInfoPtr info =
-          boost::make_shared<sensor_msgs::CameraInfo>(nerfslam::rosbridge::toCameraInfo(camera, header));
-      image_pub.publish(img);
-      info_pub.publish(info);
-      ++published;
-
-      if (p.publish_ground_truth && frame.T_world_cam) {
-        tf_pub->sendTransform(nerfslam::rosbridge::toTransformStamped(*frame.T_world_cam, p.gt_parent_frame,
-                                                                      p.gt_child_frame, header.stamp));
-        geometry_msgs::PoseStamped ps;
-        ps.header.frame_id = p.gt_parent_frame;
-        ps.header.stamp = header.stamp;
-        ps.pose = nerfslam::rosbridge::toPose(*frame.T_world_cam);
-        gt_path.poses.push_back(ps);
-        gt_path.header.stamp = header.stamp;
-        path_pub.publish(gt_path);
-      }
-      ros::spinOnce();
-    }
+    const size_t published_before = pb.published;
+    playPass(p, *ds, t0, out, pb);
     if (!ros::ok()) break;  // interrupted mid-pass
-    if (published == published_before) {
+    if (pb.published == published_before) {
       ROS_FATAL("no frame of '%s' could be decoded (%zu frames, all skipped)", p.dataset.c_str(), ds->size());
       return 1;
     }
     ++pass;
-    ROS_INFO("pass %zu done: %zu frames published in total, %zu skipped", pass, published, skipped);
+    ROS_INFO("pass %zu done: %zu frames published in total, %zu skipped", pass, pb.published, pb.skipped);
     if (!p.loop) break;
     if (p.rate == 0.0) {
       // Next pass one mean frame period after the last frame.
-      const double span = ds->timestamp(ds->size() - 1) - t_first;
+      const double span = ds->timestamp(ds->size() - 1) - ds->timestamp(0);
       const double period = ds->size() > 1 ? span / static_cast<double>(ds->size() - 1) : 1.0 / 30.0;
       t0 += ros::WallDuration((span + period) / p.speed);
     }
-    gt_path.poses.clear();
+    out.gt_path.poses.clear();
   }
   if (!p.exit_when_done && ros::ok()) {
     ROS_INFO("all frames published; idling until shutdown (set ~exit_when_done to exit)");

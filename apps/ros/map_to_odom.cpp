@@ -16,19 +16,8 @@ constexpr double kTfCacheSeconds = 60.0;
 constexpr size_t kQueue = 8;
 }  // namespace
 
-std::string loadMapToOdomParams(ros::NodeHandle& pnh, MapToOdomParams& p, const std::string& map_frame,
-                                const std::string& camera_frame) {
-  pnh.param("publish_map_to_odom", p.enabled, p.enabled);
-  pnh.param("odom_frame", p.odom_frame, p.odom_frame);
-  pnh.param("base_frame", p.base_frame, p.base_frame);
-  pnh.param("tf_timeout", p.tf_timeout, p.tf_timeout);
-  ROS_INFO("  ~publish_map_to_odom = %s%s", p.enabled ? "true" : "false",
-           p.enabled ? " (tf map -> odom, no map -> camera)" : "");
-  ROS_INFO("  ~odom_frame = %s", p.odom_frame.c_str());
-  ROS_INFO("  ~base_frame = %s", p.base_frame.c_str());
-  ROS_INFO("  ~tf_timeout = %g s", p.tf_timeout);
-  if (!(p.tf_timeout >= 0 && p.tf_timeout <= 10))
-    return "~tf_timeout must be in 0..10 s (got " + std::to_string(p.tf_timeout) + ")";
+std::string checkMapToOdomParams(const MapToOdomParams& p, const std::string& map_frame,
+                                 const std::string& camera_frame) {
   if (!p.enabled) return "";
   for (const auto& [name, value] : {std::pair{"~odom_frame", p.odom_frame}, std::pair{"~base_frame", p.base_frame}}) {
     if (value.empty()) return std::string(name) + " must not be empty (~publish_map_to_odom is true)";

@@ -1,25 +1,8 @@
-// nerf_mapping_node: the NeRF half of the off-board mapping split (docs/ros.md, "Off-board mapping").
-// tracking_node (on the robot) runs tracking and the sparse mapping and sends its keyframes and their
-// bundle-adjusted poses over ROS topics; this node, on the same or another computer, keeps a replica
-// of the sparse map from them (keyframe_link.h, MapReplica) and trains an unchanged NerfMapping on
-// it, fed through a KeyframeBus of its own exactly as SlamSystem feeds it in nerfslam_node.
-//
-// Subscribed (remap them to the tracking node's topics, e.g. keyframes:=/tracking_node/keyframes_out):
-//   keyframes          nerfslam/MapKeyframe: a new keyframe (image, camera_info, pose, id, map points)
-//   keyframe_poses     nerfslam/KeyframePoses: the keyframes' poses after bundle adjustment, culled and
-//                      removed keyframes, the map points
-//   pose               geometry_msgs/PoseStamped (optional): the tracked camera pose ~nerf_view is
-//                      rendered from; without it, the newest keyframe's
-// Published (private namespace), as nerfslam_node publishes them (nerf_publisher.h):
-//   ~nerf_view, ~nerf_depth, ~nerf_cloud, /diagnostics (replica and NeRF)
-// Services:
-//   ~save_map          std_srvs/Trigger: the replica's keyframes (images and poses; no features, no
-//                      points) and the NeRF model, as a map folder in ~map_dir
-// Parameters: ~map_frame, ~camera_frame, ~nerf_threads, ~nerf_nice, ~nerf_publish_period,
-//   ~nerf_cloud_period, ~nerf_cloud_source, ~nerf_cloud_views, ~nerf_cloud_stride,
-//   ~nerf_render_threads, ~nerf_render_nice, ~map_dir as in nerfslam_node, and
-//   ~keyframe_queue     int  32 (1..100000)  keyframes waiting for the NeRF thread before the oldest
-//                                            are dropped (nerf.keyframe_queue)
+// nerf_mapping_node: the NeRF half of the off-board mapping split (docs/ros.md, "Off-board mapping",
+// "nerf_mapping_node": topics, services, parameters). tracking_node sends its keyframes and their
+// bundle-adjusted poses over ROS topics; this node keeps a replica of the sparse map from them
+// (keyframe_link.h, MapReplica) and trains an unchanged NerfMapping on it, fed through a KeyframeBus
+// of its own exactly as SlamSystem feeds it in nerfslam_node.
 #include <cstdio>
 #include <memory>
 #include <mutex>
@@ -37,39 +20,23 @@
 #include "nerfslam_ros/keyframe_link.h"
 #include "nerfslam_ros/master_watch.h"
 #include "nerfslam_ros/nerf_publisher.h"
+#include "nerfslam_ros/node_params.h"
 
 namespace {
 
 using nerfslam::rosnode::MapSource;
 using nerfslam::rosnode::ViewPose;
 
-struct Params {
-  nerfslam::rosnode::NerfParams nerf;
-  int keyframe_queue = nerfslam::NerfMappingOptions{}.keyframe_queue;
-};
-
-std::string loadParams(ros::NodeHandle& pnh, Params& p) {
-  ROS_INFO("nerf_mapping_node parameters:");
-  pnh.param("keyframe_queue", p.keyframe_queue, p.keyframe_queue);
-  ROS_INFO("  ~keyframe_queue = %d", p.keyframe_queue);
-  if (std::string err = nerfslam::rosnode::loadNerfParams(pnh, p.nerf, false); !err.empty()) return err;
-  if (p.keyframe_queue < 1 || p.keyframe_queue > 100000)
-    return "~keyframe_queue must be in 1..100000 (got " + std::to_string(p.keyframe_queue) + ")";
-  return "";
-}
+using Params = nerfslam::rosnode::NerfMappingNodeParams;
 
 class NerfMappingNode {
  public:
   NerfMappingNode(ros::NodeHandle nh, ros::NodeHandle pnh, Params p)
       : nh_(nh), pnh_(pnh), p_(std::move(p)), updater_(nh, pnh) {
-    options_.nerf.enabled = true;
-    options_.nerf.threads = p_.nerf.nerf_threads;
-    options_.nerf.nice_increment = p_.nerf.nerf_nice;
-    options_.nerf.keyframe_queue = p_.keyframe_queue;
-    nerf_ = std::make_unique<nerfslam::NerfMapping>(replica_.map(), bus_, options_.nerf);
+    nerf_ = std::make_unique<nerfslam::NerfMapping>(replica_.map(), bus_, p_.slam.nerf);
     nerf_->start();
     nerf_pub_ = std::make_unique<nerfslam::rosnode::NerfPublisher>(
-        pnh_, p_.nerf, [this] { return source(); }, [this] { return viewPose(); });
+        pnh_, p_.topics, true, [this] { return source(); }, [this] { return viewPose(); });
     updater_.setHardwareID("nerfslam");
     updater_.add("nerf_mapping_node", this, &NerfMappingNode::diagnose);
     diag_timer_ =
@@ -133,7 +100,7 @@ class NerfMappingNode {
     s->map = &replica_.map();
     s->nerf = nerf_.get();
     s->camera = std::move(cam);
-    s->options = options_;
+    s->options = p_.slam;
     s->generation = replica_.session();
     s->map_to_save = [this] { return replica_.keyframesOnly(); };
     return s;
@@ -173,7 +140,6 @@ class NerfMappingNode {
   ros::NodeHandle nh_, pnh_;
   Params p_;
   diagnostic_updater::Updater updater_;
-  nerfslam::SystemOptions options_;
   nerfslam::rosnode::MapReplica replica_;
   nerfslam::KeyframeBus bus_;  // before nerf_, which unsubscribes from it
   std::unique_ptr<nerfslam::NerfMapping> nerf_;
@@ -191,5 +157,5 @@ class NerfMappingNode {
 int main(int argc, char** argv) {
   ros::init(argc, argv, "nerf_mapping_node");
   Params p;
-  return nerfslam::rosnode::spinNode<NerfMappingNode>(p, loadParams);
+  return nerfslam::rosnode::spinNode<NerfMappingNode>(p, nerfslam::rosnode::loadNerfMappingNodeParams);
 }

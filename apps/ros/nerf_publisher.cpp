@@ -35,61 +35,6 @@ double wallSeconds() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
-std::string loadNerfParams(ros::NodeHandle& pnh, NerfParams& p, bool read_nerf_switch) {
-  pnh.param("map_frame", p.map_frame, p.map_frame);
-  pnh.param("camera_frame", p.camera_frame, p.camera_frame);
-  if (read_nerf_switch) pnh.param("nerf", p.nerf, p.nerf);
-  pnh.param("nerf_threads", p.nerf_threads, p.nerf_threads);
-  pnh.param("nerf_nice", p.nerf_nice, p.nerf_nice);
-  pnh.param("nerf_publish_period", p.nerf_publish_period, p.nerf_publish_period);
-  pnh.param("nerf_cloud_period", p.nerf_cloud_period, p.nerf_cloud_period);
-  pnh.param("nerf_cloud_source", p.nerf_cloud_source, p.nerf_cloud_source);
-  pnh.param("nerf_cloud_views", p.nerf_cloud_views, p.nerf_cloud_views);
-  pnh.param("nerf_cloud_stride", p.nerf_cloud_stride, p.nerf_cloud_stride);
-  pnh.param("nerf_render_threads", p.nerf_render_threads, p.nerf_render_threads);
-  pnh.param("nerf_render_nice", p.nerf_render_nice, p.nerf_render_nice);
-  pnh.param("map_dir", p.map_dir, p.map_dir);
-  ROS_INFO("  ~map_frame = %s", p.map_frame.c_str());
-  ROS_INFO("  ~camera_frame = %s", p.camera_frame.c_str());
-  ROS_INFO("  ~nerf = %s", p.nerf ? "true" : "false");
-  ROS_INFO("  ~nerf_threads = %d", p.nerf_threads);
-  ROS_INFO("  ~nerf_nice = %d", p.nerf_nice);
-  ROS_INFO("  ~nerf_publish_period = %g s", p.nerf_publish_period);
-  ROS_INFO("  ~nerf_cloud_period = %g s", p.nerf_cloud_period);
-  ROS_INFO("  ~nerf_cloud_source = %s", p.nerf_cloud_source.c_str());
-  ROS_INFO("  ~nerf_cloud_views = %d", p.nerf_cloud_views);
-  ROS_INFO("  ~nerf_cloud_stride = %d", p.nerf_cloud_stride);
-  ROS_INFO("  ~nerf_render_threads = %d", p.nerf_render_threads);
-  ROS_INFO("  ~nerf_render_nice = %d", p.nerf_render_nice);
-  ROS_INFO("  ~map_dir = %s (%s)", p.map_dir.c_str(), resolveMapDir(p.map_dir).c_str());
-  if (p.map_frame.empty()) return "~map_frame must not be empty";
-  if (p.camera_frame.empty()) return "~camera_frame must not be empty";
-  if (p.map_frame == p.camera_frame) return "~map_frame and ~camera_frame must differ";
-  if (p.nerf_threads < 1 || p.nerf_threads > 64)
-    return "~nerf_threads must be in 1..64 (got " + std::to_string(p.nerf_threads) + ")";
-  if (p.nerf_nice < 0 || p.nerf_nice > 19)
-    return "~nerf_nice must be in 0..19 (got " + std::to_string(p.nerf_nice) + ")";
-  if (!(p.nerf_publish_period > 0) || !std::isfinite(p.nerf_publish_period))
-    return "~nerf_publish_period must be > 0 (got " + std::to_string(p.nerf_publish_period) + ")";
-  if (!(p.nerf_cloud_period > 0) || !std::isfinite(p.nerf_cloud_period))
-    return "~nerf_cloud_period must be > 0 (got " + std::to_string(p.nerf_cloud_period) + ")";
-  if (p.nerf_cloud_source != "depth" && p.nerf_cloud_source != "density")
-    return "~nerf_cloud_source must be depth or density (got '" + p.nerf_cloud_source + "')";
-  if (p.nerf_cloud_views < 1 || p.nerf_cloud_views > 64)
-    return "~nerf_cloud_views must be in 1..64 (got " + std::to_string(p.nerf_cloud_views) + ")";
-  if (p.nerf_cloud_stride < 1 || p.nerf_cloud_stride > 16)
-    return "~nerf_cloud_stride must be in 1..16 (got " + std::to_string(p.nerf_cloud_stride) + ")";
-  if (p.nerf_render_threads < 1 || p.nerf_render_threads > 64)
-    return "~nerf_render_threads must be in 1..64 (got " + std::to_string(p.nerf_render_threads) + ")";
-  if (p.nerf_render_nice < 0 || p.nerf_render_nice > 19)
-    return "~nerf_render_nice must be in 0..19 (got " + std::to_string(p.nerf_render_nice) + ")";
-  if (p.map_dir.empty()) return "~map_dir must not be empty";
-  if (p.nerf && p.nerf_render_nice > p.nerf_nice)
-    ROS_WARN("~nerf_render_nice (%d) > ~nerf_nice (%d): NeRF training will starve the NeRF topics' renders",
-             p.nerf_render_nice, p.nerf_nice);
-  return "";
-}
-
 // A copy of the NeRF model that the publisher thread renders, exports and saves from, so that NeRF
 // training pauses only while the copy is taken (a memcpy of the parameters and the occupancy grid,
 // under NerfMapping::withModel), not for a whole render. Costs one model's memory (the size of a
@@ -157,9 +102,10 @@ class NerfPublisher::ModelCopy {
   std::string key_;
 };
 
-NerfPublisher::NerfPublisher(ros::NodeHandle pnh, NerfParams p, SourceFn source, PoseFn pose)
+NerfPublisher::NerfPublisher(ros::NodeHandle pnh, NerfTopicsOptions p, bool nerf, SourceFn source, PoseFn pose)
     : pnh_(pnh),
       p_(std::move(p)),
+      nerf_(nerf),
       source_(std::move(source)),
       pose_(std::move(pose)),
       model_copy_(std::make_unique<ModelCopy>()) {
@@ -168,7 +114,7 @@ NerfPublisher::NerfPublisher(ros::NodeHandle pnh, NerfParams p, SourceFn source,
   queue_nh_ = pnh_;
   queue_nh_.setCallbackQueue(&queue_);
   save_srv_ = queue_nh_.advertiseService("save_map", &NerfPublisher::onSaveMap, this);
-  if (p_.nerf) {
+  if (nerf_) {
     view_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_view", 1);
     depth_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_depth", 1);
     cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("nerf_cloud", 1, true);
@@ -192,7 +138,7 @@ void NerfPublisher::run() {
   double next_cloud = wallSeconds() + p_.nerf_cloud_period;
   while (!stopping_ && ros::ok()) {
     queue_.callAvailable(ros::WallDuration(0.05));
-    if (!p_.nerf || stopping_) continue;
+    if (!nerf_ || stopping_) continue;
     // A render longer than its period is followed by half a period of rest, so the thread never
     // renders back to back.
     double now = wallSeconds();
@@ -383,8 +329,8 @@ bool NerfPublisher::onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Re
 }
 
 void NerfPublisher::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const {
-  s.add("nerf", p_.nerf ? "on" : "off");
-  if (p_.nerf) {
+  s.add("nerf", nerf_ ? "on" : "off");
+  if (nerf_) {
     // Only stats() here (a short lock of its own): hasModel(), trainingCamera() and viewPoses() take
     // the model lock, held across whole training steps and renders, and would stall this (the image
     // callbacks') thread.

@@ -303,6 +303,13 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
   EXPECT_GT(model.training_steps, 0u);
   std::printf("loaded: %zu keyframes, %zu points, NeRF model with %lu steps\n", loaded.map->numKeyframes(),
               loaded.map->numPoints(), static_cast<unsigned long>(model.training_steps));
+  // The options the system ran with (test/ros/nerfslam_node_nerf_config.yaml, then the .test file's
+  // ~nerf/psnr_interval_s and ~nerf_nice).
+  const nerfslam::SystemOptions saved = nerfslam::loadMapOptions(map_dir);
+  EXPECT_EQ(saved.frame_queue, 4);
+  EXPECT_EQ(saved.nerf.psnr_interval_s, 1.0);  // the default, over the file's 2.0
+  EXPECT_EQ(saved.nerf.nice_increment, 0);
+  EXPECT_TRUE(saved.nerf.enabled);
 
   // 8. The node kept running: its diagnostics keep coming and count one save and two refusals.
   int diag_before = 0;
@@ -388,16 +395,21 @@ nerfslam::test::CommandResult runNode(const std::string& args) {
 TEST(NerfslamNodeNerf, InvalidNerfParametersExitNonZeroNamingTheParameter) {
   const auto period = runNode("__name:=bad_nerf_period_node _nerf_publish_period:=0.0");
   EXPECT_EQ(period.exit_code, 1) << period.output;
-  EXPECT_NE(period.output.find("~nerf_publish_period must be > 0"), std::string::npos) << period.output;
+  EXPECT_NE(period.output.find("~nerf_publish_period: field 'nerf_publish_period': must be > 0 (got 0)"),
+            std::string::npos)
+      << period.output;
 
   const auto source = runNode("__name:=bad_nerf_source_node _nerf_cloud_source:=mesh");
   EXPECT_EQ(source.exit_code, 1) << source.output;
-  EXPECT_NE(source.output.find("~nerf_cloud_source must be depth or density (got 'mesh')"), std::string::npos)
+  EXPECT_NE(source.output.find(
+                "~nerf_cloud_source: field 'nerf_cloud_source': must be one of: depth, density (got \"mesh\")"),
+            std::string::npos)
       << source.output;
 
   const auto threads = runNode("__name:=bad_nerf_threads_node _nerf_threads:=0");
   EXPECT_EQ(threads.exit_code, 1) << threads.output;
-  EXPECT_NE(threads.output.find("~nerf_threads must be in 1..64 (got 0)"), std::string::npos) << threads.output;
+  EXPECT_NE(threads.output.find("~nerf_threads: field 'nerf.threads': must be in [1, 256] (got 0)"), std::string::npos)
+      << threads.output;
 }
 
 }  // namespace

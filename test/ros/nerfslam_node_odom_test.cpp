@@ -438,7 +438,7 @@ TEST(NerfslamNodeOdom, InvalidFramesExitNonZeroNamingTheParameter) {
       {"__name:=odom_bad2 _map_frame:=world _odom_frame:=world", "~odom_frame must differ from ~map_frame"},
       {"__name:=odom_bad3 _base_frame:=camera_optical_frame", "~base_frame must differ from ~camera_frame"},
       {"__name:=odom_bad4 _base_frame:=odom", "~odom_frame and ~base_frame must differ"},
-      {"__name:=odom_bad5 _tf_timeout:=-1.0", "~tf_timeout must be in 0..10 s"},
+      {"__name:=odom_bad5 _tf_timeout:=-1.0", "~tf_timeout: field 'tf_timeout': must be in [0, 10] (got -1)"},
   };
   for (const auto& [args, message] : cases) {
     const auto r = runNode(args);

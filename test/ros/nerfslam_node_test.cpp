@@ -233,7 +233,8 @@ nerfslam::test::CommandResult runNode(const std::string& args) {
 TEST(NerfslamNode, InvalidParametersExitNonZeroNamingTheParameter) {
   const nerfslam::test::CommandResult queue = runNode("__name:=bad_queue_node _queue_size:=0");
   EXPECT_EQ(queue.exit_code, 1) << queue.output;
-  EXPECT_NE(queue.output.find("~queue_size must be >= 1 (got 0)"), std::string::npos) << queue.output;
+  EXPECT_NE(queue.output.find("~queue_size: field 'queue_size': must be > 0 (got 0)"), std::string::npos)
+      << queue.output;
 
   const nerfslam::test::CommandResult frames = runNode("__name:=bad_frames_node _map_frame:=same _camera_frame:=same");
   EXPECT_EQ(frames.exit_code, 1) << frames.output;
@@ -241,12 +242,56 @@ TEST(NerfslamNode, InvalidParametersExitNonZeroNamingTheParameter) {
 
   const nerfslam::test::CommandResult period = runNode("__name:=bad_period_node _map_points_period:=-1.0");
   EXPECT_EQ(period.exit_code, 1) << period.output;
-  EXPECT_NE(period.output.find("~map_points_period must be >= 0"), std::string::npos) << period.output;
+  EXPECT_NE(period.output.find("~map_points_period: field 'map_points_period': must be >= 0 (got -1)"),
+            std::string::npos)
+      << period.output;
 
   const nerfslam::test::CommandResult yaml =
       runNode("__name:=bad_yaml_node _camera_yaml:=/nonexistent/nerfslam_no_camera.yaml");
   EXPECT_EQ(yaml.exit_code, 1) << yaml.output;
   EXPECT_NE(yaml.output.find("/nonexistent/nerfslam_no_camera.yaml"), std::string::npos) << yaml.output;
+
+  // A library option by its path, and a bad value in the ~config file: named with where it came from.
+  const nerfslam::test::CommandResult path = runNode("__name:=bad_path_node _tracking/features/max_features:=10");
+  EXPECT_EQ(path.exit_code, 1) << path.output;
+  EXPECT_NE(path.output.find("~tracking/features/max_features: field 'tracking.features.max_features': must be in "
+                             "[50, 20000] (got 10)"),
+            std::string::npos)
+      << path.output;
+  nerfslam::test::TempDir dir;
+  const std::string config = (dir / "bad.yaml").string();
+  nerfslam::test::writeText(config, "nerf:\n  threads: 0\n");
+  const nerfslam::test::CommandResult file = runNode("__name:=bad_config_node _config:=" + config);
+  EXPECT_EQ(file.exit_code, 1) << file.output;
+  EXPECT_NE(file.output.find(config + ": field 'nerf.threads': must be in [1, 256] (got 0)"), std::string::npos)
+      << file.output;
+  nerfslam::test::writeText(config, "trackng: {}\n");
+  const nerfslam::test::CommandResult typo = runNode("__name:=typo_config_node _config:=" + config);
+  EXPECT_EQ(typo.exit_code, 1) << typo.output;
+  EXPECT_NE(typo.output.find("field 'trackng': unknown option (did you mean 'tracking'?)"), std::string::npos)
+      << typo.output;
+}
+
+// ~config read with the library's loader, overridden by a parameter by path and by an alias: the
+// effective options the node prints at start-up (it is stopped with SIGINT after 10 s).
+TEST(NerfslamNode, ConfigFileThenParametersSetTheOptions) {
+  nerfslam::test::TempDir dir;
+  const std::string config = (dir / "system.yaml").string();
+  nerfslam::test::writeText(config,
+                            "local_map_keyframes: 7\n"
+                            "tracking:\n  features:\n    max_features: 1500\n"
+                            "nerf:\n  enabled: false\n  threads: 3\n");
+  const nerfslam::test::CommandResult r =
+      nerfslam::test::runCommand("timeout -s INT 10 '" NERFSLAM_NODE_PATH "' __name:=config_node _config:=" + config +
+                                 " _max_features:=1800 _nerf/threads:=2 image:=/config_node_test/image");
+  EXPECT_NE(r.output.find("local_map_keyframes = 7  #"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("local_map_keyframes (from " + config + ")"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("tracking.features.max_features = 1800  #"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("tracking.features.max_features (from ~max_features)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("nerf.threads = 2  #"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("nerf.threads (from ~nerf/threads)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("nerf.enabled = false  #"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("FATAL"), std::string::npos) << r.output;
 }
 
 }  // namespace

@@ -37,6 +37,7 @@
 #include <tf2_ros/transform_listener.h>
 
 #include "nerfslam/core/bounded_queue.h"
+#include "nerfslam/core/options.h"
 #include "nerfslam/core/pose.h"
 
 namespace nerfslam::rosnode {
@@ -46,13 +47,22 @@ struct MapToOdomParams {
   std::string odom_frame = "odom";
   std::string base_frame = "base_link";
   double tf_timeout = 0.1;  // s: the longest wait for the robot's transforms at an image's stamp
+
+  template <class V>
+  void visit(V& v) {
+    v("publish_map_to_odom", enabled,
+      "Publish the REP-105 correction map_frame -> odom_frame instead of map_frame -> camera_frame");
+    v("odom_frame", odom_frame, "The robot's odometry frame (odom_frame -> base_frame on tf, from the robot)");
+    v("base_frame", base_frame, "The robot's base (a static base_frame -> camera_frame on tf, from the robot)");
+    v("tf_timeout", tf_timeout, "Seconds each image's map -> odom lookups may wait for the robot's transforms",
+      check::range(0.0, 10.0));
+  }
 };
 
-// Reads, prints and validates ~publish_map_to_odom, ~odom_frame, ~base_frame, ~tf_timeout (the frames
-// only when enabled: non-empty, distinct from each other and from ~map_frame and ~camera_frame);
-// returns an error message naming the parameter, or "".
-std::string loadMapToOdomParams(ros::NodeHandle& pnh, MapToOdomParams& p, const std::string& map_frame,
-                                const std::string& camera_frame);
+// The checks visit() cannot express, when enabled: the frames are not empty, distinct from each
+// other and from ~map_frame and ~camera_frame. Returns an error message naming the parameter, or "".
+std::string checkMapToOdomParams(const MapToOdomParams& p, const std::string& map_frame,
+                                 const std::string& camera_frame);
 
 class MapToOdomPublisher {
  public:

@@ -3,7 +3,7 @@
 // a thread of its own (niceness ~nerf_render_nice) that renders ~nerf_view / ~nerf_depth /
 // ~nerf_cloud and serves ~save_map, never on the image callbacks or a tracking worker. Renders and
 // saves read a copy of the model taken under NerfMapping::withModel, which pauses NeRF training (not
-// tracking) only for the copy. Also the shared parameters of those topics (docs/ros.md).
+// tracking) only for the copy. Also the ROS-only parameters of those topics (docs/ros.md).
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
@@ -24,16 +24,16 @@
 #include "nerfslam/mapping/map.h"
 #include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam/system/slam_system.h"
+#include "nerfslam_ros/ros_params.h"
 
 namespace nerfslam::rosnode {
 
-// Parameters shared by the nodes that run or publish a NeRF (read by loadNerfParams).
-struct NerfParams {
+// The ROS-only parameters of the nodes with a NerfPublisher (nerfslam_node, tracking_node for
+// ~save_map, nerf_mapping_node): the frames, the NeRF topics and ~save_map. The NeRF itself is the
+// library's (SystemOptions::nerf); docs/ros.md has the table.
+struct NerfTopicsOptions {
   std::string map_frame = "map";
   std::string camera_frame = "camera_optical_frame";
-  bool nerf = true;
-  int nerf_threads = 1;
-  int nerf_nice = 19;
   double nerf_publish_period = 2.0;
   double nerf_cloud_period = 10.0;
   std::string nerf_cloud_source = "depth";
@@ -42,11 +42,29 @@ struct NerfParams {
   int nerf_render_threads = 1;
   int nerf_render_nice = 10;
   std::string map_dir = "nerfslam_map";
-};
 
-// Reads, prints and validates ~map_frame, ~camera_frame, the ~nerf* parameters (~nerf itself only
-// when read_nerf_switch) and ~map_dir; returns an error message or "".
-std::string loadNerfParams(ros::NodeHandle& pnh, NerfParams& p, bool read_nerf_switch);
+  template <class V>
+  void visit(V& v) {
+    v("map_frame", map_frame, "Fixed frame of tf, poses, path, points, markers and the NeRF cloud", notEmpty());
+    v("camera_frame", camera_frame, "Child frame of the tf (OpenCV optical axes); differs from map_frame", notEmpty());
+    v("nerf_publish_period", nerf_publish_period, "Seconds between ~nerf_view / ~nerf_depth renders",
+      check::positive<double>());
+    v("nerf_cloud_period", nerf_cloud_period, "Seconds between ~nerf_cloud exports", check::positive<double>());
+    v("nerf_cloud_source", nerf_cloud_source,
+      "depth: depth renders of the newest training views; density: the density grid",
+      check::oneOf({"depth", "density"}));
+    v("nerf_cloud_views", nerf_cloud_views, "Newest training views in the depth cloud", check::range(1, 64));
+    v("nerf_cloud_stride", nerf_cloud_stride,
+      "Depth cloud: views rendered at 1/stride of the training resolution, a point per pixel", check::range(1, 16));
+    v("nerf_render_threads", nerf_render_threads, "Threads of each render and cloud export", check::range(1, 64));
+    v("nerf_render_nice", nerf_render_nice,
+      "Niceness of the NeRF publisher thread (10: views before training, after tracking)", check::range(0, 19));
+    v("map_dir", map_dir,
+      "Folder ~save_map writes (re-read at each call; relative: to the working directory, ROS_HOME under "
+      "roslaunch)",
+      notEmpty());
+  }
+};
 
 // A relative ~map_dir is taken relative to the working directory (ROS_HOME under roslaunch).
 std::filesystem::path resolveMapDir(const std::string& dir);
@@ -94,9 +112,10 @@ class NerfPublisher {
  public:
   using SourceFn = std::function<std::shared_ptr<const MapSource>()>;
   using PoseFn = std::function<std::optional<ViewPose>()>;
-  // Advertises the NeRF topics (when p.nerf) and ~save_map on `pnh`. `source` and `pose` are called
-  // from the publisher thread; a view is rendered only from a pose of the source's generation.
-  NerfPublisher(ros::NodeHandle pnh, NerfParams p, SourceFn source, PoseFn pose);
+  // Advertises the NeRF topics (when `nerf`: the node trains a NeRF) and ~save_map on `pnh`. `source`
+  // and `pose` are called from the publisher thread; a view is rendered only from a pose of the
+  // source's generation.
+  NerfPublisher(ros::NodeHandle pnh, NerfTopicsOptions p, bool nerf, SourceFn source, PoseFn pose);
   ~NerfPublisher();
   NerfPublisher(const NerfPublisher&) = delete;
   NerfPublisher& operator=(const NerfPublisher&) = delete;
@@ -104,7 +123,7 @@ class NerfPublisher {
   void start();
   void stop();  // joins the thread; idempotent
 
-  // NeRF fields (when p.nerf) and the map saves, for the node's diagnostics.
+  // NeRF fields (when `nerf`) and the map saves, for the node's diagnostics.
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const;
   // "N NeRF renders (mean X ms), N NeRF clouds, N map saves (N failed)", for the shutdown summary.
   std::string summary() const;
@@ -119,7 +138,8 @@ class NerfPublisher {
   bool onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res);
 
   ros::NodeHandle pnh_;
-  NerfParams p_;
+  NerfTopicsOptions p_;
+  bool nerf_ = true;
   SourceFn source_;
   PoseFn pose_;
   ros::CallbackQueue queue_;  // before everything registered on it
