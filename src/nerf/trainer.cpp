@@ -264,7 +264,7 @@ void Trainer::updateGrid() {
   if (step_ == 0) {
     p.uniform_cells = -1;  // every cell once: the grid starts from a full, untested occupancy
   } else {
-    const double per_step = opt_.grid_update_scale;
+    const double per_step = opt_.effectiveGridUpdateScale();
     if (step_ < opt_.grid_warmup_steps) {
       p.uniform_cells = std::max<int64_t>(1, int64_t(double(total) / 4 * per_step));  // instant-ngp's share, uniform
     } else {

@@ -89,10 +89,10 @@ struct Fixture {
 NerfMappingOptions testOptions() {
   NerfMappingOptions o;
   o.downscale = 1.0;
-  o.threads = 2;
+  o.train.threads = 2;
   o.nice_increment = 0;
   o.log2_hashmap_size = 16;
-  o.samples_per_step = 1 << 13;
+  o.train.samples_per_step = 1 << 13;
   o.refit_check_steps = 1000000;  // refits only when the test asks
   o.min_view_distance = 0;        // every keyframe becomes a view
   return o;
@@ -186,8 +186,8 @@ TEST(NerfMapping, FollowsPosesThatBundleAdjustmentChanges) {
   // A keyframe culled with a parent keeps its image, with the pose resolved through the parent.
   const SE3 T_parent_kf = fx.map->keyframe(1)->T_world_cam.inverse() * fx.map->keyframe(3)->T_world_cam;
   fx.map->eraseKeyframe(3, 1);
-  fx.map->setKeyframePose(1, SE3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0.2, 0)) *
-                                 fx.map->keyframe(1)->T_world_cam);
+  fx.map->setKeyframePose(
+      1, SE3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0.2, 0)) * fx.map->keyframe(1)->T_world_cam);
   nm.trainFor(0, 1);
   const SE3 expect = fx.map->keyframe(1)->T_world_cam * T_parent_kf;
   EXPECT_LT((nm.viewPoses()[3].translation() - expect.translation()).norm(), 1e-9);

@@ -2,6 +2,7 @@
 // Options of the NeRF pipeline around the radiance field: scene normalisation, occupancy grid,
 // training schedule, rendering. Defaults follow instant-ngp where a CPU does not force a change
 // (each such change is documented at the field).
+#include <algorithm>
 #include <cstdint>
 
 #include "nerfslam/core/options.h"
@@ -51,8 +52,8 @@ struct TrainOptions {
   int grid_update_interval = 16;
   int grid_warmup_steps = 256;
   double grid_update_fraction = 1.0 / 16.0;
-  // Scales the cells sampled per update (warm-up and after): online training with small steps sets
-  // it to samples_per_step / 2^16 so grid queries stay proportional to the training samples.
+  // Scales the cells sampled per update (warm-up and after). 0: samples_per_step / 2^16 (at most
+  // 1), so grid queries stay proportional to the training samples of smaller steps.
   double grid_update_scale = 1.0;
   double grid_decay = 0.95;
   double grid_threshold = 0.01;
@@ -81,14 +82,20 @@ struct TrainOptions {
       check::nonNegative<int>());
     v("grid_update_fraction", grid_update_fraction, "Fraction of cells sampled per update after warm-up",
       check::range(0.0, 1.0));
-    v("grid_update_scale", grid_update_scale, "Factor on the cells sampled per occupancy update",
-      check::range(1e-6, 1.0));
+    v("grid_update_scale", grid_update_scale,
+      "Factor on the cells sampled per occupancy update (0: samples_per_step / 65536, at most 1)",
+      check::range(0.0, 1.0));
     v("grid_decay", grid_decay, "Occupancy decay per update", check::range(0.0, 1.0));
     v("grid_threshold", grid_threshold, "Occupancy threshold cap (density * sqrt(3)/1024)", check::positive<double>());
     v("random_background", random_background, "Random background colour per training ray");
     v("snapshot_interval", snapshot_interval, "Steps between divergence snapshots", check::positive<int>());
     v("threads", threads, "Training threads", check::range(1, 256));
     v("seed", seed, "Random seed", check::nonNegative<int64_t>());
+  }
+
+  // grid_update_scale with 0 resolved.
+  double effectiveGridUpdateScale() const {
+    return grid_update_scale > 0 ? grid_update_scale : std::min(1.0, double(samples_per_step) / double(1 << 16));
   }
 };
 
