@@ -7,7 +7,7 @@ namespace nerfslam::rosnode {
 namespace {
 
 // The one table of aliases: the one-word parameters launch files, tests and users had before
-// ~config, each with the library option it sets. When an option moves (e.g. nerf.threads into the
+// ~config, each with the library option it sets. When an option moves (e.g. nerf.train.threads into the
 // NeRF's training options), change its path here: a node refuses to start with an alias naming no
 // option, and the test ros.NodeParams.EveryAliasNamesAnOption says which.
 struct AliasRow {
@@ -20,7 +20,7 @@ struct AliasRow {
 constexpr AliasRow kAliases[] = {
     {"max_features", "tracking.features.max_features", true, false},
     {"nerf", "nerf.enabled", true, false},
-    {"nerf_threads", "nerf.threads", true, true},
+    {"nerf_threads", "nerf.train.threads", true, true},
     {"nerf_nice", "nerf.nice_increment", true, true},
     {"keyframe_queue", "nerf.keyframe_queue", false, true},
 };

@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/options_yaml.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/nerf/hash_grid.h"
 #include "nerfslam/nerf/mlp.h"
@@ -24,32 +25,13 @@ constexpr size_t kTile = 64;
 constexpr int kColorIn = kShCoeffs + kDensityOutputs;  // 32
 constexpr int kColorOutPadded = 16;
 
-std::string configFile() { return "field config"; }
+constexpr const char* kConfigSource = "field config";
 
 }  // namespace
 
-namespace {
-// Applies every visit() constraint; nested sections are prefixed "section.field".
-struct CheckVisitor {
-  std::string prefix;
-  template <class T, class C>
-  void operator()(const char* name, T& value, const char*, C check) {
-    const std::string why = check(value);
-    if (!why.empty()) throw fieldError(configFile(), prefix + name, why);
-  }
-  template <class T>
-  void operator()(const char* name, T& section, const char*) {
-    CheckVisitor sub{prefix + name + "."};
-    section.visit(sub);
-  }
-};
-}  // namespace
-
-void validate(const FieldConfig& config) {
-  FieldConfig c = config;
-  CheckVisitor v;
-  c.visit(v);
-  auto bad = [](const std::string& field, const std::string& what) { throw fieldError(configFile(), field, what); };
+void validate(const FieldConfig& c) {
+  validateOptions(c, kConfigSource);
+  auto bad = [](const std::string& field, const std::string& what) { throw fieldError(kConfigSource, field, what); };
   if (c.n_levels % 8 != 0) bad("n_levels", "must be a multiple of 8");
   if (c.hidden % 16 != 0) bad("hidden", "must be a multiple of 16");
   if (c.finest_resolution < c.base_resolution) bad("finest_resolution", "must be >= base_resolution");

@@ -264,7 +264,7 @@ void Trainer::updateGrid() {
   if (step_ == 0) {
     p.uniform_cells = -1;  // every cell once: the grid starts from a full, untested occupancy
   } else {
-    const double per_step = opt_.grid_update_scale;
+    const double per_step = opt_.effectiveGridUpdateScale();
     if (step_ < opt_.grid_warmup_steps) {
       p.uniform_cells = std::max<int64_t>(1, int64_t(double(total) / 4 * per_step));  // instant-ngp's share, uniform
     } else {
@@ -305,147 +305,168 @@ void Trainer::rollback() {
   ++rollbacks_;
 }
 
-StepStats Trainer::step() {
-  StepStats stats;
-  auto t_grid = Clock::now();
-  if (step_ % opt_.grid_update_interval == 0) {
-    updateGrid();
-    stats.times.grid_update = since(t_grid);
-  }
-  const int T = opt_.threads;
-  const MarchParams march = MarchParams::forScene(model_.scene.aabb_scale, model_.grid->cascades());
-  const int budget = std::max(1, opt_.samples_per_step / T);
-  const float delta = float(opt_.huber_delta);
+// What every thread of a step shares.
+struct Trainer::StepPlan {
+  MarchParams march;
+  int budget = 0;   // samples per thread
+  int chunk = 0;    // samples per chunk (at most budget)
+  float delta = 0;  // Huber delta
+};
 
-  // Each thread draws rays until it holds `budget` samples, in chunks of about samples_per_chunk:
-  // march, field forward, composite, loss gradient and field backward of a chunk before the next, so
-  // the activations the backward reads are held for one chunk, not for the whole step. The
-  // gradients are of the summed per-ray loss; step() scales them by 1/rays (the mean per ray).
-  const int chunk = std::max(1, std::min(budget, opt_.samples_per_chunk));
-  parallelRun(T, [&](int ti) {
-    ThreadState& ts = *threads_[size_t(ti)];
-    ts.times = StageTimes{};
-    ts.loss = 0;
-    ts.composited = 0;
-    ts.num_rays = 0;
-    ts.num_samples = 0;
-    const size_t cap = size_t(chunk + opt_.max_samples_per_ray);
-    for (auto* v : {&ts.pos, &ts.dir, &ts.fpos, &ts.rgb, &ts.d_rgb}) v->resize(3 * cap);
-    for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
-    std::uniform_real_distribution<float> u01(0.f, 1.f);
-    std::uniform_int_distribution<size_t> pick_uniform(0, views_.size() - 1);
-    std::discrete_distribution<size_t> pick_weighted;
-    if (!view_weights_.empty())
-      pick_weighted = std::discrete_distribution<size_t>(view_weights_.begin(), view_weights_.end());
-    ts.view_loss.assign(views_.size(), 0.0);
-    ts.view_rays.assign(views_.size(), 0);
-    int total = 0, attempts = 0;
-    bool full = false;
-    while (!full && total < budget) {
-      // March rays into this chunk.
-      auto t0 = Clock::now();
-      ts.rays.clear();
-      int used = 0;
-      while (used < chunk) {
-        if (total + used >= budget || attempts >= budget) {
-          full = true;
-          break;
-        }
-        ++attempts;
-        const size_t vi = view_weights_.empty() ? pick_uniform(ts.rng) : pick_weighted(ts.rng);
-        const ImageData& im = images_[vi];
-        const int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
-        const int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
-        const float ju = u01(ts.rng) - 0.5f, jv = u01(ts.rng) - 0.5f, jt = u01(ts.rng);
-        float bg[3] = {1.f, 1.f, 1.f};
-        if (opt_.random_background)
-          for (float& b : bg) b = u01(ts.rng);
-        const RayGenerator gen(views_[vi].camera, views_[vi].T_world_cam, model_.scene);
-        const Ray ray = gen.ray(px + ju, py + jv);
-        RayMarcher marcher(ray, *model_.grid, model_.scene, march, jt);
-        const int room = std::min(opt_.max_samples_per_ray, budget - total - used);
-        const int n = marcher.next(room, ts.pos.data() + 3 * used, ts.t.data() + used, ts.dt.data() + used);
-        if (n == 0) continue;
-        if (!marcher.done() && n == room && room < opt_.max_samples_per_ray) {  // would be truncated
-          full = true;
-          break;
-        }
-        ThreadState::RayInfo ri;
-        ri.offset = used;
-        ri.count = n;
-        ri.view = int(vi);
-        const uint8_t* px_rgba = im.rgba.data() + (size_t(py) * im.width + px) * 4;
-        const float a = px_rgba[3] / 255.f;
-        for (int c = 0; c < 3; ++c) {
-          ri.bg[c] = bg[c];
-          ri.target[c] = px_rgba[c] / 255.f * a + bg[c] * (1.f - a);
-        }
-        for (int k = 0; k < n; ++k) {
-          float* d = ts.dir.data() + 3 * (used + k);
-          d[0] = ray.dir.x();
-          d[1] = ray.dir.y();
-          d[2] = ray.dir.z();
-        }
-        ts.rays.push_back(ri);
-        used += n;
-      }
-      ts.times.march += since(t0);
-      if (used == 0) break;
-      total += used;
-      ts.num_rays += int64_t(ts.rays.size());
+// A thread's ray draws over one step: which view, pixel, jitter and background.
+struct Trainer::RayPicker {
+  std::uniform_real_distribution<float> u01{0.f, 1.f};
+  std::uniform_int_distribution<size_t> uniform;
+  std::discrete_distribution<size_t> weighted;
+  bool use_weights = false;
+  size_t view(std::mt19937_64& rng) { return use_weights ? weighted(rng) : uniform(rng); }
+};
 
-      t0 = Clock::now();
-      model_.toFieldCoords(ts.pos.data(), size_t(used), ts.fpos.data());
-      // Density of every sample, then colour only where the composite will read it: up to each
-      // ray's early termination (the rest, ~40 % of the samples, get zero gradients anyway).
-      model_.field->forwardDensity(ts.ws, ts.fpos.data(), ts.dir.data(), size_t(used), ts.sigma.data());
-      ts.needed.assign(size_t(used), 0);
-      for (auto& ri : ts.rays) {
-        ri.used = compositeUsedSamples(ri.count, ts.sigma.data() + ri.offset, ts.dt.data() + ri.offset);
-        std::fill(ts.needed.begin() + ri.offset, ts.needed.begin() + ri.offset + ri.used, uint8_t(1));
-      }
-      model_.field->forwardColor(ts.ws, ts.needed.data(), ts.rgb.data());
-      ts.times.field_forward += since(t0);
-
-      t0 = Clock::now();
-      for (const auto& ri : ts.rays) {
-        const int o = ri.offset;
-        const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o,
-                                                   ts.dt.data() + o, ts.t.data() + o, ri.bg);
-        if (r.used != ri.used)  // the same arithmetic on the same densities: a bug if ever different
-          fail(fmt::format("NeRF training: composite used {} samples of a ray, the colour pass {}", r.used, ri.used));
-        float d_color[3];
-        const double ray_loss = huberLoss3(r.rgb, ri.target, delta, d_color);
-        ts.loss += ray_loss;
-        ts.composited += r.used;
-        ts.view_loss[size_t(ri.view)] += ray_loss;
-        ++ts.view_rays[size_t(ri.view)];
-        compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o,
-                          ri.bg, r, d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
-      }
-      ts.times.composite += since(t0);
-
-      t0 = Clock::now();
-      model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads);
-      ts.times.field_backward += since(t0);
+// Marches rays into the thread's chunk buffers until the chunk holds plan.chunk samples, the
+// thread's budget is reached (total samples before this chunk), or a ray would be truncated
+// (*full: the step is over for this thread). Returns the chunk's samples.
+int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, int total, int* attempts_io,
+                        bool* full) {
+  ts.rays.clear();
+  int used = 0, attempts = *attempts_io;  // a local: no reload after the buffer writes below
+  while (used < plan.chunk) {
+    if (total + used >= plan.budget || attempts >= plan.budget) {
+      *full = true;
+      break;
     }
-    ts.num_samples = total;
-  });
+    ++attempts;
+    const size_t vi = pick.view(ts.rng);
+    const ImageData& im = images_[vi];
+    const int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
+    const int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
+    const float ju = pick.u01(ts.rng) - 0.5f, jv = pick.u01(ts.rng) - 0.5f, jt = pick.u01(ts.rng);
+    float bg[3] = {1.f, 1.f, 1.f};
+    if (opt_.random_background)
+      for (float& b : bg) b = pick.u01(ts.rng);
+    const RayGenerator gen(views_[vi].camera, views_[vi].T_world_cam, model_.scene);
+    const Ray ray = gen.ray(px + ju, py + jv);
+    RayMarcher marcher(ray, *model_.grid, model_.scene, plan.march, jt);
+    const int room = std::min(opt_.max_samples_per_ray, plan.budget - total - used);
+    const int n = marcher.next(room, ts.pos.data() + 3 * used, ts.t.data() + used, ts.dt.data() + used);
+    if (n == 0) continue;
+    if (!marcher.done() && n == room && room < opt_.max_samples_per_ray) {  // would be truncated
+      *full = true;
+      break;
+    }
+    ThreadState::RayInfo ri;
+    ri.offset = used;
+    ri.count = n;
+    ri.view = int(vi);
+    const uint8_t* px_rgba = im.rgba.data() + (size_t(py) * im.width + px) * 4;
+    const float a = px_rgba[3] / 255.f;
+    for (int c = 0; c < 3; ++c) {
+      ri.bg[c] = bg[c];
+      ri.target[c] = px_rgba[c] / 255.f * a + bg[c] * (1.f - a);
+    }
+    for (int k = 0; k < n; ++k) {
+      float* d = ts.dir.data() + 3 * (used + k);
+      d[0] = ray.dir.x();
+      d[1] = ray.dir.y();
+      d[2] = ray.dir.z();
+    }
+    ts.rays.push_back(ri);
+    used += n;
+  }
+  *attempts_io = attempts;
+  return used;
+}
 
+// Density of every sample of the chunk, then colour only where the composite will read it: up to
+// each ray's early termination (the rest get zero gradients anyway).
+void Trainer::forwardChunk(ThreadState& ts, int used) {
+  model_.toFieldCoords(ts.pos.data(), size_t(used), ts.fpos.data());
+  model_.field->forwardDensity(ts.ws, ts.fpos.data(), ts.dir.data(), size_t(used), ts.sigma.data());
+  ts.needed.assign(size_t(used), 0);
+  for (auto& ri : ts.rays) {
+    ri.used = compositeUsedSamples(ri.count, ts.sigma.data() + ri.offset, ts.dt.data() + ri.offset);
+    std::fill(ts.needed.begin() + ri.offset, ts.needed.begin() + ri.offset + ri.used, uint8_t(1));
+  }
+  model_.field->forwardColor(ts.ws, ts.needed.data(), ts.rgb.data());
+}
+
+// Composites each ray of the chunk, adds its Huber loss to the thread's sums and writes the loss
+// gradients of its samples (d_sigma, d_rgb).
+void Trainer::compositeChunk(ThreadState& ts, float delta) {
+  for (const auto& ri : ts.rays) {
+    const int o = ri.offset;
+    const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o,
+                                               ts.t.data() + o, ri.bg);
+    if (r.used != ri.used)  // the same arithmetic on the same densities: a bug if ever different
+      fail(fmt::format("NeRF training: composite used {} samples of a ray, the colour pass {}", r.used, ri.used));
+    float d_color[3];
+    const double ray_loss = huberLoss3(r.rgb, ri.target, delta, d_color);
+    ts.loss += ray_loss;
+    ts.composited += r.used;
+    ts.view_loss[size_t(ri.view)] += ray_loss;
+    ++ts.view_rays[size_t(ri.view)];
+    compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o, ri.bg, r,
+                      d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
+  }
+}
+
+// One thread's share of a step: rays until it holds plan.budget samples, in chunks of about
+// plan.chunk: march, field forward, composite, loss gradient and field backward of a chunk before
+// the next, so the activations the backward reads are held for one chunk, not for the whole step.
+// The gradients are of the summed per-ray loss.
+void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
+  ts.times = StageTimes{};
+  ts.loss = 0;
+  ts.composited = 0;
+  ts.num_rays = 0;
+  ts.num_samples = 0;
+  const size_t cap = size_t(plan.chunk + opt_.max_samples_per_ray);
+  for (auto* v : {&ts.pos, &ts.dir, &ts.fpos, &ts.rgb, &ts.d_rgb}) v->resize(3 * cap);
+  for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
+  RayPicker pick;
+  pick.uniform = std::uniform_int_distribution<size_t>(0, views_.size() - 1);
+  pick.use_weights = !view_weights_.empty();
+  if (pick.use_weights) pick.weighted = std::discrete_distribution<size_t>(view_weights_.begin(), view_weights_.end());
+  ts.view_loss.assign(views_.size(), 0.0);
+  ts.view_rays.assign(views_.size(), 0);
+  int total = 0, attempts = 0;
+  bool full = false;
+  while (!full && total < plan.budget) {
+    auto t0 = Clock::now();
+    const int used = marchChunk(ts, plan, pick, total, &attempts, &full);
+    ts.times.march += since(t0);
+    if (used == 0) break;
+    total += used;
+    ts.num_rays += int64_t(ts.rays.size());
+
+    t0 = Clock::now();
+    forwardChunk(ts, used);
+    ts.times.field_forward += since(t0);
+
+    t0 = Clock::now();
+    compositeChunk(ts, plan.delta);
+    ts.times.composite += since(t0);
+
+    t0 = Clock::now();
+    model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads);
+    ts.times.field_backward += since(t0);
+  }
+  ts.num_samples = total;
+}
+
+// Sums the threads' results into stats (wall time per stage: the slowest thread's) and, when the
+// loss is finite, updates the per-view losses. Returns the summed loss.
+double Trainer::gatherThreads(StepStats* stats) {
   double loss = 0;
-  int64_t rays = 0, samples = 0;
   for (const auto& ts : threads_) {
     loss += ts->loss;
-    rays += ts->num_rays;
-    samples += ts->num_samples;
-    stats.samples_composited += ts->composited;
-    stats.times.march = std::max(stats.times.march, ts->times.march);
-    stats.times.field_forward = std::max(stats.times.field_forward, ts->times.field_forward);
-    stats.times.composite = std::max(stats.times.composite, ts->times.composite);
-    stats.times.field_backward = std::max(stats.times.field_backward, ts->times.field_backward);
+    stats->rays += ts->num_rays;
+    stats->samples += ts->num_samples;
+    stats->samples_composited += ts->composited;
+    stats->times.march = std::max(stats->times.march, ts->times.march);
+    stats->times.field_forward = std::max(stats->times.field_forward, ts->times.field_forward);
+    stats->times.composite = std::max(stats->times.composite, ts->times.composite);
+    stats->times.field_backward = std::max(stats->times.field_backward, ts->times.field_backward);
   }
-  stats.rays = rays;
-  stats.samples = samples;
   if (std::isfinite(loss))
     for (size_t v = 0; v < views_.size(); ++v) {
       double sum = 0;
@@ -458,7 +479,51 @@ StepStats Trainer::step() {
       const double mean = sum / n;
       view_loss_[v] = view_loss_[v] < 0 ? mean : 0.5 * view_loss_[v] + 0.5 * mean;
     }
-  stats.loss = rays > 0 ? loss / double(rays) : 0.0;
+  stats->loss = stats->rays > 0 ? loss / double(stats->rays) : 0.0;
+  return loss;
+}
+
+// Applies the threads' gradients with Adam (the mean-per-ray loss: scaled by 1/rays). False when
+// the MLP weights came out non-finite (then rolled back).
+bool Trainer::applyGradients(int64_t rays, StepStats* stats) {
+  const float scale = 1.f / float(rays);
+  auto t0 = Clock::now();
+  std::vector<RadianceField::Gradients*> grads;
+  for (auto& ts : threads_) grads.push_back(&ts->grads);
+  model_.field->step(grads, float(learningRate()), opt_.threads, scale);
+  stats->times.optimizer = since(t0);
+  // A NaN that the forward pass hides (e.g. behind a ReLU) still shows in the MLP weights after the
+  // update; they are small (~10^4 floats), so they are checked every step. The hash grid is
+  // checked with every snapshot.
+  for (const auto& a : model_.field->parameters()) {
+    if (a.name == "hash_grid") continue;
+    for (size_t i = 0; i < a.size; ++i)
+      if (!std::isfinite(a.data[i])) {
+        spdlog::warn("NeRF training diverged at step {} ({} not finite); rolling back to the snapshot of step {}",
+                     step_, a.name, snap_step_);
+        rollback();
+        return false;
+      }
+  }
+  return true;
+}
+
+StepStats Trainer::step() {
+  StepStats stats;
+  auto t_grid = Clock::now();
+  if (step_ % opt_.grid_update_interval == 0) {
+    updateGrid();
+    stats.times.grid_update = since(t_grid);
+  }
+  const int T = opt_.threads;
+  StepPlan plan;
+  plan.march = MarchParams::forScene(model_.scene.aabb_scale, model_.grid->cascades());
+  plan.budget = std::max(1, opt_.samples_per_step / T);
+  plan.chunk = std::max(1, std::min(plan.budget, opt_.samples_per_chunk));
+  plan.delta = float(opt_.huber_delta);
+  parallelRun(T, [&](int ti) { trainThread(*threads_[size_t(ti)], plan); });
+
+  const double loss = gatherThreads(&stats);
   if (!std::isfinite(loss)) {
     spdlog::warn("NeRF training diverged at step {} (loss {}); rolling back to the snapshot of step {}", step_, loss,
                  snap_step_);
@@ -468,29 +533,10 @@ StepStats Trainer::step() {
     ++step_;
     return stats;
   }
-  if (rays > 0) {
-    // The mean-per-ray loss: step() scales the summed gradients by 1/rays.
-    const float scale = 1.f / float(rays);
-    auto t0 = Clock::now();
-    std::vector<RadianceField::Gradients*> grads;
-    for (auto& ts : threads_) grads.push_back(&ts->grads);
-    model_.field->step(grads, float(learningRate()), T, scale);
-    stats.times.optimizer = since(t0);
-    // A NaN that the forward pass hides (e.g. behind a ReLU) still shows in the MLP weights after the
-    // update; they are small (~10^4 floats), so they are checked every step. The hash grid is
-    // checked with every snapshot.
-    for (const auto& a : model_.field->parameters()) {
-      if (a.name == "hash_grid") continue;
-      for (size_t i = 0; i < a.size; ++i)
-        if (!std::isfinite(a.data[i])) {
-          spdlog::warn("NeRF training diverged at step {} ({} not finite); rolling back to the snapshot of step {}",
-                       step_, a.name, snap_step_);
-          rollback();
-          stats.rolled_back = true;
-          ++step_;
-          return stats;
-        }
-    }
+  if (stats.rays > 0 && !applyGradients(stats.rays, &stats)) {
+    stats.rolled_back = true;
+    ++step_;
+    return stats;
   }
   ++step_;
   model_.training_steps = uint64_t(step_);

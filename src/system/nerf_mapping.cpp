@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <random>
 
 #include <spdlog/spdlog.h>
 #include <opencv2/imgproc.hpp>
@@ -12,52 +11,15 @@
 #include "nerfslam/core/thread.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
+#include "nerfslam/nerf/distill.h"
 #include "nerfslam/nerf/model_io.h"
-#include "nerfslam/nerf/renderer.h"
+#include "nerfslam/nerf/scene_box.h"
 
 namespace nerfslam {
 namespace {
 
 using Clock = std::chrono::steady_clock;
 double nowSeconds() { return std::chrono::duration<double>(Clock::now().time_since_epoch()).count(); }
-
-// Robust box of the sparse map: per axis the 2nd..98th percentile of the points, widened to hold
-// every camera centre.
-void robustBox(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras,
-               Eigen::Vector3d* lo, Eigen::Vector3d* hi) {
-  *lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-  *hi = -*lo;
-  if (!points.empty()) {
-    for (int a = 0; a < 3; ++a) {
-      std::vector<double> v;
-      v.reserve(points.size());
-      for (const auto& p : points) v.push_back(p[a]);
-      const size_t k0 = size_t(0.02 * double(v.size() - 1)), k1 = size_t(0.98 * double(v.size() - 1));
-      std::nth_element(v.begin(), v.begin() + long(k0), v.end());
-      (*lo)[a] = v[k0];
-      std::nth_element(v.begin(), v.begin() + long(k1), v.end());
-      (*hi)[a] = v[k1];
-    }
-  }
-  for (const auto& c : cameras) {
-    *lo = lo->cwiseMin(c);
-    *hi = hi->cwiseMax(c);
-  }
-}
-
-// The transform mapping the box (times margin, as a cube) onto the unit cube.
-nerf::SceneTransform fitTransform(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double margin,
-                                  double aabb_scale, double min_half) {
-  nerf::SceneTransform s;
-  const Eigen::Vector3d centre = 0.5 * (lo + hi);
-  const double half = std::max(0.5 * (hi - lo).maxCoeff() * margin, min_half);
-  s.scale = 0.5 / half;
-  s.offset = Eigen::Vector3d::Constant(0.5) - s.scale * centre;
-  s.aabb_scale = aabb_scale;
-  return s;
-}
-
-bool insideUnitCube(const Eigen::Vector3d& p) { return (p.array() >= 0.0).all() && (p.array() <= 1.0).all(); }
 
 }  // namespace
 
@@ -148,38 +110,37 @@ void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
     ++stats_.keyframes_skipped;
     return;
   }
-  nerf::TrainingView view =
+  PendingView pending;
+  pending.training =
       nerf::makeTrainingView(bgr, ev.frame->camera, pose, opt_.downscale, fmt::format("keyframe {}", ev.id));
-  train_camera_ = view.camera;
-  pending_.push_back(std::move(view));
-  pending_kf_.push_back(ev.id);
-  pending_frame_.push_back(ev.frame->id);
+  pending.view.keyframe = ev.id;
+  pending.view.frame = ev.frame->id;
+  pending.view.pose = pending.training.T_world_cam;
+  train_camera_ = pending.training.camera;
+  pending_.push_back(std::move(pending));
   if (!model_) createModel();
   if (!model_) return;
-  for (size_t i = 0; i < pending_.size(); ++i) {
+  for (PendingView& p : pending_) {
     if (!trainer_) {
-      trainer_ = std::make_unique<nerf::Trainer>(*model_, std::vector<nerf::TrainingView>{pending_[i]}, trainOptions());
+      trainer_ =
+          std::make_unique<nerf::Trainer>(*model_, std::vector<nerf::TrainingView>{std::move(p.training)}, opt_.train);
     } else {
-      trainer_->addView(pending_[i]);
+      trainer_->addView(std::move(p.training));
     }
-    poses_.push_back(pending_[i].T_world_cam);
-    view_kf_.push_back(pending_kf_[i]);
-    view_frame_.push_back(pending_frame_[i]);
-    view_valid_.push_back(true);
+    views_.push_back(p.view);
   }
   pending_.clear();
-  pending_kf_.clear();
-  pending_frame_.clear();
   updateWeights();
   std::lock_guard<std::mutex> s(stats_mutex_);
-  stats_.views = int(view_kf_.size());
+  stats_.views = int(views_.size());
 }
 
 bool NerfMapping::isNewView(const SE3& pose) const {
   // World distance threshold: a fraction of the fitted box (the unit cube is 1 / scale wide).
   const double min_dist = opt_.min_view_distance / model_->scene.scale;
   const double min_angle = opt_.min_view_angle_deg * M_PI / 180.0;
-  for (const SE3& T : poses_) {
+  for (const View& view : views_) {
+    const SE3& T = view.pose;
     const double d = (T.translation() - pose.translation()).norm();
     const double a = T.rotation().angularDistance(pose.rotation());
     if (d < min_dist && a < min_angle) return false;
@@ -187,18 +148,21 @@ bool NerfMapping::isNewView(const SE3& pose) const {
   return true;
 }
 
-void NerfMapping::createModel() {
-  std::vector<Eigen::Vector3d> pts, cams;
+std::vector<Eigen::Vector3d> NerfMapping::mapPoints() const {
+  std::vector<Eigen::Vector3d> pts;
   for (const auto& p : map_.points()) pts.push_back(p.position);
+  return pts;
+}
+
+void NerfMapping::createModel() {
+  const std::vector<Eigen::Vector3d> pts = mapPoints();
+  std::vector<Eigen::Vector3d> cams;
   for (const auto& kf : map_.keyframes()) cams.push_back(kf.centre());
   if (pts.size() < 20 || cams.size() < 2) return;  // wait for an initialised map
-  Eigen::Vector3d lo, hi;
-  robustBox(pts, cams, &lo, &hi);
-  const double baseline = (cams.front() - cams.back()).norm();
-  const nerf::SceneTransform scene = fitTransform(lo, hi, opt_.box_margin, opt_.aabb_scale, std::max(baseline, 1e-3));
+  const nerf::SceneTransform scene = nerf::fitSceneBox(pts, cams, opt_.box_margin, opt_.aabb_scale);
   nerf::FieldConfig fc;
   fc.log2_hashmap_size = opt_.log2_hashmap_size;
-  model_ = std::make_unique<nerf::NerfModel>(nerf::NerfModel::create(fc, scene, uint64_t(opt_.seed)));
+  model_ = std::make_unique<nerf::NerfModel>(nerf::NerfModel::create(fc, scene, uint64_t(opt_.train.seed)));
   field_steps_before_ = 0;
   spdlog::info("NeRF: scene box fitted to {} map points and {} keyframes: scale {:.4g}, aabb_scale {}", pts.size(),
                cams.size(), scene.scale, scene.aabb_scale);
@@ -209,23 +173,21 @@ void NerfMapping::refreshPoses() {
   if (v == seen_map_version_) return;
   seen_map_version_ = v;
   size_t lost = 0;
-  for (size_t i = 0; i < view_kf_.size(); ++i) {
-    const auto pose = map_.resolvePose(view_kf_[i]);
-    view_valid_[i] = pose.has_value();
+  for (size_t i = 0; i < views_.size(); ++i) {
+    View& view = views_[i];
+    const auto pose = map_.resolvePose(view.keyframe);
+    view.valid = pose.has_value();
     lost += !pose;
     if (!pose) continue;
     trainer_->setViewPose(i, *pose);
-    poses_[i] = *pose;
+    view.pose = *pose;
   }
-  if (lost > 0 && lost == view_kf_.size()) {
+  if (lost > 0 && lost == views_.size()) {
     // The sparse map was reset (tracking re-initialised): its keyframes and scale are gone.
     spdlog::warn("NeRF: the sparse map was reset; starting the NeRF map again");
     trainer_.reset();
     model_.reset();
-    poses_.clear();
-    view_kf_.clear();
-    view_frame_.clear();
-    view_valid_.clear();
+    views_.clear();
     std::lock_guard<std::mutex> s(stats_mutex_);
     step_offset_ = stats_.steps;
     stats_.views = 0;
@@ -233,7 +195,7 @@ void NerfMapping::refreshPoses() {
 }
 
 void NerfMapping::updateWeights() {
-  const size_t n = view_kf_.size();
+  const size_t n = views_.size();
   if (n == 0 || !trainer_) return;
   const auto& loss = trainer_->viewLoss();
   // Loss-proportional share over all views (unseen views get the largest loss seen so far).
@@ -253,7 +215,7 @@ void NerfMapping::updateWeights() {
   for (size_t i = 0; i < n; ++i) {
     w[i] = old_share * w[i] / sum;
     if (i + recent >= n) w[i] += (1.0 - old_share) / double(recent);
-    if (!view_valid_[i]) w[i] = 0;  // its keyframe left the map without a parent
+    if (!views_[i].valid) w[i] = 0;  // its keyframe left the map without a parent
   }
   double total = 0;
   for (double x : w) total += x;
@@ -306,38 +268,30 @@ void NerfMapping::measurePsnr() {
   double sum = 0;
   int n = 0;
   for (size_t i = loss.size(); i-- > 0 && n < opt_.recent_keyframes;)
-    if (loss[i] >= 0 && view_valid_[i]) {
+    if (loss[i] >= 0 && views_[i].valid) {
       sum += loss[i];
       ++n;
     }
   if (n == 0) return;
-  const double mse = std::max(2.0 * trainOptions().huber_delta * (sum / n) / 3.0, 1e-10);
+  const double mse = std::max(2.0 * opt_.train.huber_delta * (sum / n) / 3.0, 1e-10);
   std::lock_guard<std::mutex> s(stats_mutex_);
   stats_.psnr_recent = -10.0 * std::log10(mse);
 }
 
+std::vector<Eigen::Vector3d> NerfMapping::viewCentres() const {
+  std::vector<Eigen::Vector3d> cams;
+  for (const View& view : views_) cams.push_back(view.pose.translation());
+  return cams;
+}
+
 bool NerfMapping::checkRefit() {
-  const auto points = map_.points();
-  if (points.empty()) return false;
-  size_t outside = 0;
-  for (const auto& p : points) outside += !insideUnitCube(model_->scene.toNerf(p.position));
-  bool camera_out = false;
-  for (const auto& T : poses_) camera_out |= !insideUnitCube(model_->scene.toNerf(T.translation()));
-  return camera_out || double(outside) > opt_.refit_outside_fraction * double(points.size());
+  return nerf::sceneBoxOutgrown(model_->scene, mapPoints(), viewCentres(), opt_.refit_outside_fraction);
 }
 
 void NerfMapping::refit() {
-  std::vector<Eigen::Vector3d> pts, cams;
-  for (const auto& p : map_.points()) pts.push_back(p.position);
-  for (const auto& T : poses_) cams.push_back(T.translation());
-  Eigen::Vector3d lo, hi;
-  robustBox(pts, cams, &lo, &hi);
-  // Keep the old box inside the new one, and grow by at least 1.5x so refits stay rare.
   const nerf::SceneTransform old = model_->scene;
-  lo = lo.cwiseMin(old.toWorld(Eigen::Vector3d::Zero()));
-  hi = hi.cwiseMax(old.toWorld(Eigen::Vector3d::Ones()));
-  const double old_half = 0.5 / old.scale;
-  const nerf::SceneTransform scene = fitTransform(lo, hi, opt_.box_margin, opt_.aabb_scale, 1.5 * old_half);
+  const nerf::SceneTransform scene =
+      nerf::refitSceneBox(old, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale);
   int64_t refits;
   {
     std::lock_guard<std::mutex> s(stats_mutex_);
@@ -345,7 +299,7 @@ void NerfMapping::refit() {
     step_offset_ += trainer_->steps();
   }
   auto fresh = std::make_unique<nerf::NerfModel>(
-      nerf::NerfModel::create(model_->field->config(), scene, uint64_t(opt_.seed) + uint64_t(refits)));
+      nerf::NerfModel::create(model_->field->config(), scene, uint64_t(opt_.train.seed) + uint64_t(refits)));
   // A field trained for fewer steps than the distillation would take knows less than those steps
   // would teach from the images: the new field starts from scratch instead.
   const int64_t old_steps = field_steps_before_ + trainer_->steps();
@@ -354,7 +308,11 @@ void NerfMapping::refit() {
   std::string how = fmt::format("the old field had trained {} steps (< {}), the new one starts afresh", old_steps,
                                 opt_.distill_steps);
   if (distil) {
-    const double loss = distill(*model_, *fresh, opt_.distill_steps);
+    nerf::DistillOptions d;
+    d.steps = opt_.distill_steps;
+    d.lr = opt_.train.lr;
+    d.seed = uint64_t(opt_.train.seed);
+    const double loss = nerf::distill(*model_, *fresh, d);
     how = fmt::format("old field distilled in {} steps (final loss {:.4f})", opt_.distill_steps, loss);
   }
   spdlog::info("NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), {}", old.scale, scene.scale,
@@ -363,86 +321,10 @@ void NerfMapping::refit() {
   for (size_t i = 0; i < trainer_->numViews(); ++i) views.push_back(trainer_->view(i));
   trainer_.reset();
   model_ = std::move(fresh);
-  trainer_ = std::make_unique<nerf::Trainer>(*model_, std::move(views), trainOptions());
+  trainer_ = std::make_unique<nerf::Trainer>(*model_, std::move(views), opt_.train);
   seen_map_version_ = 0;
   refreshPoses();
   updateWeights();
-}
-
-nerf::TrainOptions NerfMapping::trainOptions() const {
-  nerf::TrainOptions to;
-  to.threads = opt_.threads;
-  to.samples_per_step = opt_.samples_per_step;
-  to.lr = opt_.lr;
-  to.seed = opt_.seed;
-  // Small steps: grid queries proportional to the training samples (the trainer's shares are for 2^16).
-  to.grid_update_scale = std::min(1.0, double(opt_.samples_per_step) / double(1 << 16));
-  return to;
-}
-
-double NerfMapping::distill(const nerf::NerfModel& from, nerf::NerfModel& to, int steps) const {
-  // Regresses the new field's log-density (converted to the new NeRF-space units: sigma is per
-  // NeRF length, so sigma_to = sigma_from * scale_from / scale_to) and, where the old field is
-  // dense, its colour, at random points of the old unit cube (half uniform, half in occupied cells).
-  const int n = 4096;
-  const double k = from.scene.scale / to.scene.scale;
-  const float log_floor = std::log(0.1f);
-  std::mt19937_64 rng(uint64_t(opt_.seed) ^ 0x64697374ull);
-  std::uniform_real_distribution<float> u01(0.f, 1.f);
-  std::normal_distribution<float> gauss(0.f, 1.f);
-  std::uniform_int_distribution<int> cell(0, nerf::OccupancyGrid::kRes - 1);
-  auto ws = to.field->makeWorkspace();
-  auto grads = to.field->makeGradients();
-  std::vector<float> p_from(3 * n), q_from(3 * n), p_to(3 * n), q_to(3 * n), dir(3 * n), sig_f(n), rgb_f(3 * n),
-      sig_t(n), rgb_t(3 * n), d_sig(n), d_rgb(3 * n);
-  double loss = 0;
-  for (int it = 0; it < steps; ++it) {
-    for (int i = 0; i < n; ++i) {
-      Eigen::Vector3f p(u01(rng), u01(rng), u01(rng));
-      if (i % 2 == 1) {
-        for (int tries = 0; tries < 64; ++tries) {
-          const int x = cell(rng), y = cell(rng), z = cell(rng);
-          if (!from.grid->occupiedCell(0, x, y, z)) continue;
-          const float c = nerf::OccupancyGrid::cellSize(0);
-          p = from.grid->cellCenter(0, x, y, z) +
-              c * Eigen::Vector3f(u01(rng) - 0.5f, u01(rng) - 0.5f, u01(rng) - 0.5f);
-          break;
-        }
-      }
-      const Eigen::Vector3d pt = to.scene.toNerf(from.scene.toWorld(p.cast<double>()));
-      Eigen::Vector3f d(gauss(rng), gauss(rng), gauss(rng));
-      d /= std::max(d.norm(), 1e-6f);
-      for (int a = 0; a < 3; ++a) {
-        p_from[3 * i + a] = p[a];
-        p_to[3 * i + a] = float(pt[a]);
-        dir[3 * i + a] = d[a];
-      }
-    }
-    from.toFieldCoords(p_from.data(), size_t(n), q_from.data());
-    to.toFieldCoords(p_to.data(), size_t(n), q_to.data());
-    from.field->query(q_from.data(), dir.data(), size_t(n), sig_f.data(), rgb_f.data());
-    to.field->forward(ws, q_to.data(), dir.data(), size_t(n), sig_t.data(), rgb_t.data());
-    loss = 0;
-    for (int i = 0; i < n; ++i) {
-      const float target_sigma = float(sig_f[i] * k);
-      const float target = std::max(std::log(std::max(target_sigma, 1e-30f)), log_floor);
-      const float s = std::max(sig_t[i], 1e-30f);
-      float e = std::log(s) - target;
-      if (target <= log_floor && e < 0) e = 0;  // empty space: anything below the floor will do
-      loss += double(e) * e;
-      d_sig[i] = 2.f * e / s / float(n);
-      const float w = 1.f - std::exp(-0.01f * target_sigma);  // colour matters where the old field is dense
-      for (int c = 0; c < 3; ++c) {
-        const float ec = rgb_t[3 * i + c] - rgb_f[3 * i + c];
-        loss += double(w) * ec * ec;
-        d_rgb[3 * i + c] = 2.f * w * ec / float(n);
-      }
-    }
-    loss /= n;
-    to.field->backward(ws, d_sig.data(), d_rgb.data(), grads);
-    to.field->step({&grads}, float(opt_.lr), 1);
-  }
-  return loss;
 }
 
 bool NerfMapping::refitNow() {
@@ -466,7 +348,7 @@ void NerfMapping::resume(const std::filesystem::path& model_file, bool train) {
   for (const auto& kf : map_.keyframes()) addKeyframe({kf.id, kf.T_world_cam, kf.frame});
   frozen_ = !train;
   spdlog::info("NeRF: continuing from {} ({} training steps, {} views){}", model_file.string(), model_->training_steps,
-               view_kf_.size(), train ? "" : "; frozen (localisation only)");
+               views_.size(), train ? "" : "; frozen (localisation only)");
 }
 
 int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads) {
@@ -502,12 +384,16 @@ bool NerfMapping::hasModel() const {
 
 std::vector<KeyframeId> NerfMapping::viewKeyframes() const {
   std::lock_guard<std::mutex> lock(model_mutex_);
-  return view_kf_;
+  std::vector<KeyframeId> out;
+  for (const View& view : views_) out.push_back(view.keyframe);
+  return out;
 }
 
 std::vector<uint64_t> NerfMapping::viewFrameIds() const {
   std::lock_guard<std::mutex> lock(model_mutex_);
-  return view_frame_;
+  std::vector<uint64_t> out;
+  for (const View& view : views_) out.push_back(view.frame);
+  return out;
 }
 
 nerf::TrainingView NerfMapping::trainingView(size_t i) const {
@@ -519,7 +405,7 @@ nerf::TrainingView NerfMapping::trainingView(size_t i) const {
 std::vector<SE3> NerfMapping::viewPoses() const {
   std::lock_guard<std::mutex> lock(model_mutex_);
   std::vector<SE3> out;
-  for (const auto& T : poses_) out.push_back(T);
+  for (const View& view : views_) out.push_back(view.pose);
   return out;
 }
 

@@ -14,74 +14,11 @@
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/nerf/export.h"
 #include "nerfslam/nerf/renderer.h"
+#include "sphere_views.h"
 #include "test_support.h"
 
 namespace nerfslam::nerf {
 namespace {
-
-// A procedural scene: an opaque sphere of radius 0.8 at the origin coloured by its normal, seen from
-// cameras on a sphere of radius 3 looking at the origin; RGBA images with transparent background.
-constexpr double kSphereRadius = 0.8;
-
-SE3 lookAt(const Eigen::Vector3d& eye) {
-  const Eigen::Vector3d z = (-eye).normalized();
-  Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ());
-  if (x.norm() < 1e-6) x = Eigen::Vector3d::UnitX();
-  x.normalize();
-  const Eigen::Vector3d y = z.cross(x);
-  Eigen::Matrix3d R;
-  R << x, y, z;
-  return SE3(R, eye);
-}
-
-TrainingView syntheticView(int i, int n, int size) {
-  const double az = 2 * M_PI * i / n, el = 0.3 + 0.5 * std::sin(3.0 * i);
-  const Eigen::Vector3d eye =
-      3.0 * Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
-  TrainingView v;
-  v.camera = Camera::pinhole(size, size, 1.1 * size, 1.1 * size, (size - 1) / 2.0, (size - 1) / 2.0);
-  v.T_world_cam = lookAt(eye);
-  v.image = cv::Mat(size, size, CV_8UC4, cv::Scalar::all(0));
-  const Eigen::Matrix3d R = v.T_world_cam.rotationMatrix();
-  for (int y = 0; y < size; ++y)
-    for (int x = 0; x < size; ++x) {
-      const Eigen::Vector3d d = (R * v.camera.unproject({double(x), double(y)})).normalized();
-      const double b = eye.dot(d), c = eye.squaredNorm() - kSphereRadius * kSphereRadius;
-      const double disc = b * b - c;
-      if (disc < 0) continue;
-      const Eigen::Vector3d p = eye + (-b - std::sqrt(disc)) * d;
-      const Eigen::Vector3d nrm = p.normalized();
-      auto& px = v.image.at<cv::Vec4b>(y, x);
-      for (int k = 0; k < 3; ++k) px[k] = cv::saturate_cast<uint8_t>(255.0 * (0.5 + 0.45 * nrm[k]));
-      px[3] = 255;
-    }
-  return v;
-}
-
-FieldConfig smallField() {
-  FieldConfig c;
-  c.n_levels = 8;
-  c.log2_hashmap_size = 15;
-  c.finest_resolution = 256;
-  c.hidden = 32;
-  return c;
-}
-
-TrainOptions smallTraining(int threads) {
-  TrainOptions o;
-  o.samples_per_step = 1 << 13;
-  o.threads = threads;
-  o.seed = 3;
-  o.grid_warmup_steps = 32;
-  o.grid_update_fraction = 1.0 / 8.0;
-  return o;
-}
-
-SceneTransform unitScene() {
-  SceneTransform s;
-  s.scale = 0.33;  // the sphere (radius 0.8) fills the middle of the unit cube
-  return s;
-}
 
 double testPsnr(const NerfModel& model, const std::vector<TrainingView>& test) {
   const float white[3] = {1, 1, 1};
@@ -98,9 +35,9 @@ double testPsnr(const NerfModel& model, const std::vector<TrainingView>& test) {
 TEST(Trainer, SyntheticSphereReachesPsnrFloor) {
   std::vector<TrainingView> train, test;
   for (int i = 0; i < 24; ++i) (i % 8 == 0 ? test : train).push_back(syntheticView(i, 24, 48));
-  NerfModel model = NerfModel::create(smallField(), unitScene(), 1);
+  NerfModel model = NerfModel::create(sphereField(), sphereScene(), 1);
   const double before = testPsnr(model, test);
-  Trainer trainer(model, train, smallTraining(2));
+  Trainer trainer(model, train, sphereTraining(2));
   for (int i = 0; i < 300; ++i) {
     const StepStats s = trainer.step();
     ASSERT_FALSE(s.rolled_back) << "step " << i;
@@ -209,8 +146,9 @@ std::vector<std::vector<float>> params(NerfModel& m) {
 TEST(Trainer, DeterministicForSeedAndThreadCount) {
   std::vector<TrainingView> views;
   for (int i = 0; i < 6; ++i) views.push_back(syntheticView(i, 6, 32));
-  NerfModel a = NerfModel::create(smallField(), unitScene(), 5), b = NerfModel::create(smallField(), unitScene(), 5);
-  Trainer ta(a, views, smallTraining(2)), tb(b, views, smallTraining(2));
+  NerfModel a = NerfModel::create(sphereField(), sphereScene(), 5),
+            b = NerfModel::create(sphereField(), sphereScene(), 5);
+  Trainer ta(a, views, sphereTraining(2)), tb(b, views, sphereTraining(2));
   for (int i = 0; i < 5; ++i) {
     const StepStats sa = ta.step(), sb = tb.step();
     EXPECT_EQ(sa.loss, sb.loss);
@@ -225,8 +163,9 @@ TEST(Trainer, DeterministicForSeedAndThreadCount) {
 TEST(Trainer, ChunkedStepsMatchOneChunkPerThread) {
   std::vector<TrainingView> views;
   for (int i = 0; i < 6; ++i) views.push_back(syntheticView(i, 6, 32));
-  NerfModel a = NerfModel::create(smallField(), unitScene(), 5), b = NerfModel::create(smallField(), unitScene(), 5);
-  TrainOptions whole = smallTraining(2), chunked = smallTraining(2);
+  NerfModel a = NerfModel::create(sphereField(), sphereScene(), 5),
+            b = NerfModel::create(sphereField(), sphereScene(), 5);
+  TrainOptions whole = sphereTraining(2), chunked = sphereTraining(2);
   whole.samples_per_chunk = whole.samples_per_step;  // one chunk per thread
   chunked.samples_per_chunk = 300;                   // ~14 chunks per thread
   Trainer ta(a, views, whole), tb(b, views, chunked);
@@ -262,8 +201,8 @@ TEST(Trainer, NonFiniteLossRollsBackToSnapshot) {
     SCOPED_TRACE(fmt::format("chunk {}, {} NaN", chunk, layer));
     std::vector<TrainingView> views;
     for (int i = 0; i < 6; ++i) views.push_back(syntheticView(i, 6, 32));
-    NerfModel m = NerfModel::create(smallField(), unitScene(), 5);
-    TrainOptions o = smallTraining(2);
+    NerfModel m = NerfModel::create(sphereField(), sphereScene(), 5);
+    TrainOptions o = sphereTraining(2);
     o.snapshot_interval = 4;
     o.samples_per_chunk = chunk;
     Trainer t(m, views, o);
@@ -293,26 +232,26 @@ TEST(Trainer, NonFiniteLossRollsBackToSnapshot) {
 }
 
 TEST(Trainer, RejectsBadViews) {
-  NerfModel m = NerfModel::create(smallField(), unitScene(), 5);
+  NerfModel m = NerfModel::create(sphereField(), sphereScene(), 5);
   TrainingView v = syntheticView(0, 6, 32);
   {
     TrainingView bad = v;
     bad.camera.fx = 0;
-    EXPECT_THROW(Trainer(m, {bad}, smallTraining(1)), Error);
+    EXPECT_THROW(Trainer(m, {bad}, sphereTraining(1)), Error);
   }
   {
     TrainingView bad = v;
     Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
     T(0, 3) = std::nan("");
     bad.T_world_cam = SE3(Eigen::Quaterniond::Identity(), T.block<3, 1>(0, 3));
-    EXPECT_THROW(Trainer(m, {bad}, smallTraining(1)), Error);
+    EXPECT_THROW(Trainer(m, {bad}, sphereTraining(1)), Error);
   }
   {
     TrainingView bad = v;
     bad.image = cv::Mat(20, 32, CV_8UC4, cv::Scalar::all(0));  // differs from the camera
-    EXPECT_THROW(Trainer(m, {bad}, smallTraining(1)), Error);
+    EXPECT_THROW(Trainer(m, {bad}, sphereTraining(1)), Error);
   }
-  EXPECT_THROW(Trainer(m, {}, smallTraining(1)), Error);
+  EXPECT_THROW(Trainer(m, {}, sphereTraining(1)), Error);
 }
 
 TEST(Trainer, MakeTrainingViewDownscalesWithPremultipliedAlpha) {

@@ -263,7 +263,7 @@ TEST(NerfslamNode, InvalidParametersExitNonZeroNamingTheParameter) {
   nerfslam::test::writeText(config, "nerf:\n  threads: 0\n");
   const nerfslam::test::CommandResult file = runNode("__name:=bad_config_node _config:=" + config);
   EXPECT_EQ(file.exit_code, 1) << file.output;
-  EXPECT_NE(file.output.find(config + ": field 'nerf.threads': must be in [1, 256] (got 0)"), std::string::npos)
+  EXPECT_NE(file.output.find(config + ": field 'nerf.train.threads': must be in [1, 256] (got 0)"), std::string::npos)
       << file.output;
   nerfslam::test::writeText(config, "trackng: {}\n");
   const nerfslam::test::CommandResult typo = runNode("__name:=typo_config_node _config:=" + config);
@@ -283,13 +283,13 @@ TEST(NerfslamNode, ConfigFileThenParametersSetTheOptions) {
                             "nerf:\n  enabled: false\n  threads: 3\n");
   const nerfslam::test::CommandResult r =
       nerfslam::test::runCommand("timeout -s INT 10 '" NERFSLAM_NODE_PATH "' __name:=config_node _config:=" + config +
-                                 " _max_features:=1800 _nerf/threads:=2 image:=/config_node_test/image");
+                                 " _max_features:=1800 _nerf/train/threads:=2 image:=/config_node_test/image");
   EXPECT_NE(r.output.find("local_map_keyframes = 7  #"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("local_map_keyframes (from " + config + ")"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("tracking.features.max_features = 1800  #"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("tracking.features.max_features (from ~max_features)"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("nerf.threads = 2  #"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("nerf.threads (from ~nerf/threads)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("nerf.train.threads = 2  #"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("nerf.train.threads (from ~nerf/train/threads)"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("nerf.enabled = false  #"), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("FATAL"), std::string::npos) << r.output;
 }

@@ -48,7 +48,7 @@ TEST(NodeParams, ConfigThenParametersByPathAndAlias) {
   EXPECT_TRUE(r.ok()) << joined(r.errors);
   EXPECT_TRUE(r.warnings.empty()) << joined(r.warnings);
   EXPECT_EQ(p.slam.tracking.features.max_features, 1700);
-  EXPECT_EQ(p.slam.nerf.threads, 3);
+  EXPECT_EQ(p.slam.nerf.train.threads, 3);
   EXPECT_EQ(p.slam.nerf.nice_increment, 12);
   EXPECT_EQ(p.slam.local_map_keyframes, 7);
   EXPECT_EQ(p.node.queue_size, 9);
@@ -56,7 +56,7 @@ TEST(NodeParams, ConfigThenParametersByPathAndAlias) {
   EXPECT_EQ(p.topics.nerf_cloud_source, "density");
   EXPECT_EQ(p.slam.keyframe_queue, nerfslam::SystemOptions{}.keyframe_queue);  // untouched
   EXPECT_EQ(r.origins.at("tracking.features.max_features"), "~tracking/features/max_features");
-  EXPECT_EQ(r.origins.at("nerf.threads"), config.string());
+  EXPECT_EQ(r.origins.at("nerf.train.threads"), config.string());
   EXPECT_EQ(r.origins.at("nerf.nice_increment"), "~nerf_nice");
   EXPECT_EQ(r.origins.at("local_map_keyframes"), config.string());
   EXPECT_EQ(r.origins.at("queue_size"), "~queue_size");
@@ -79,7 +79,7 @@ TEST(NodeParams, InvalidValuesAreRefusedNamingWhereTheyCameFrom) {
     tree["nerf_threads"] = 0;
     SlamNodeParams p;
     const ParamReport r = nerfslam::rosnode::readSlamNodeParams(tree, p);
-    EXPECT_TRUE(contains(r.errors, "~nerf_threads: field 'nerf.threads': must be in [1, 256] (got 0)"))
+    EXPECT_TRUE(contains(r.errors, "~nerf_threads: field 'nerf.train.threads': must be in [1, 256] (got 0)"))
         << joined(r.errors);
   }
   {
@@ -103,13 +103,13 @@ TEST(NodeParams, InvalidValuesAreRefusedNamingWhereTheyCameFrom) {
     tree["config"] = str(config.string());
     SlamNodeParams p;
     const ParamReport r = nerfslam::rosnode::readSlamNodeParams(tree, p);
-    EXPECT_TRUE(contains(r.errors, config.string() + ": field 'nerf.threads': must be in [1, 256] (got 0)"))
+    EXPECT_TRUE(contains(r.errors, config.string() + ": field 'nerf.train.threads': must be in [1, 256] (got 0)"))
         << joined(r.errors);
     // The same value from the file, corrected by a parameter: accepted.
     tree["nerf_threads"] = 2;
     SlamNodeParams q;
     EXPECT_TRUE(nerfslam::rosnode::readSlamNodeParams(tree, q).ok());
-    EXPECT_EQ(q.slam.nerf.threads, 2);
+    EXPECT_EQ(q.slam.nerf.train.threads, 2);
   }
   {
     XmlRpcValue tree;
@@ -142,7 +142,7 @@ TEST(NodeParams, WrongTypesUnknownKeysAndOptionsGivenTwice) {
                        "~tracking/featurs: field 'tracking.featurs': unknown option (did you mean "
                        "'features'?)"))
       << joined(r.errors);
-  EXPECT_TRUE(contains(r.errors, "~nerf/threads and ~nerf_threads: field 'nerf.threads': set twice"))
+  EXPECT_TRUE(contains(r.errors, "~nerf/train/threads and ~nerf_threads: field 'nerf.train.threads': set twice"))
       << joined(r.errors);
   EXPECT_EQ(r.errors.size(), 3u) << joined(r.errors);
   ASSERT_EQ(r.warnings.size(), 1u) << joined(r.warnings);
@@ -166,7 +166,7 @@ TEST(NodeParams, NerfIsTheSwitchAsAValueAndTheSectionAsANamespace) {
     const ParamReport r = nerfslam::rosnode::readSlamNodeParams(tree, p);
     EXPECT_TRUE(r.ok()) << joined(r.errors);
     EXPECT_FALSE(p.slam.nerf.enabled);
-    EXPECT_EQ(p.slam.nerf.threads, 2);
+    EXPECT_EQ(p.slam.nerf.train.threads, 2);
     EXPECT_EQ(r.origins.at("nerf.enabled"), "~nerf/enabled");
   }
   {
@@ -199,7 +199,7 @@ TEST(NodeParams, TrackingNodeTrainsNoNerfAndNerfMappingNodeAlways) {
   EXPECT_TRUE(rn.ok()) << joined(rn.errors);
   EXPECT_EQ(n.slam.nerf.keyframe_queue, 50);
   EXPECT_EQ(n.slam.keyframe_queue, nerfslam::SystemOptions{}.keyframe_queue);
-  EXPECT_EQ(n.slam.nerf.threads, 4);
+  EXPECT_EQ(n.slam.nerf.train.threads, 4);
   EXPECT_TRUE(n.slam.nerf.enabled);
   EXPECT_TRUE(contains(rn.warnings, "nerf_mapping_node always trains the NeRF")) << joined(rn.warnings);
 }

@@ -89,10 +89,10 @@ struct Fixture {
 NerfMappingOptions testOptions() {
   NerfMappingOptions o;
   o.downscale = 1.0;
-  o.threads = 2;
+  o.train.threads = 2;
   o.nice_increment = 0;
   o.log2_hashmap_size = 16;
-  o.samples_per_step = 1 << 13;
+  o.train.samples_per_step = 1 << 13;
   o.refit_check_steps = 1000000;  // refits only when the test asks
   o.min_view_distance = 0;        // every keyframe becomes a view
   return o;

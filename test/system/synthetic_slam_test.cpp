@@ -177,7 +177,7 @@ TEST(SyntheticSlam, TrackingMappingAndNerfThreadsRunTogether) {
   const auto ds = renderHandheldRoom(dir, 60, 320, 240);
   SystemOptions opt;
   opt.nerf.enabled = true;
-  opt.nerf.threads = 2;
+  opt.nerf.train.threads = 2;
   opt.nerf.nice_increment = 0;  // train while tracking runs, not only when the machine is idle
   opt.nerf.final_train_seconds = 0;
   SlamSystem sys(ds->camera(), opt);

@@ -17,18 +17,9 @@
 // backward() any number of times, and one thread then calls step() with all the Gradients in a
 // fixed order. The result is bit-identical for the same seed, the same split and the same order.
 //
-// Throughput (bench_nerf_field, paper config, AVX-512, 2^16 ray-ordered samples per step, CPU time
-// on a shared machine): ~260k (1 cm sample spacing) to ~340k (sqrt(3)/1024 spacing) trained samples
-// per core-second end to end; the hash-table gathers/scatters of the fine levels dominate, the MLPs
-// run at ~85% of the measured FMA peak. Larger steps amortise step() (it visits every touched
-// entry; ~55 new entries per sample at 1 cm spacing).
-//
-// Change log of this header (kept stable for the pipeline engineer):
-//   v1 (04:15 UTC): initial API.
-//   v2 (04:20 UTC): added gradients(Gradients&) (read access for tests/diagnostics). Additive.
-//   v3: the hash-grid gradient is deferred to step() (scattered level by level there; Gradients
-//       no longer hold a dense copy of the table); added lastStepProfile(), queryDensityOutputs()
-//       and queryColor(). Additive.
+// Cost: the hash-table gathers and scatters of the fine levels dominate a training step (the MLPs
+// run close to the FMA peak); larger steps amortise step(), which visits every touched entry
+// (bench_nerf_field measures it).
 #include <cstddef>
 #include <cstdint>
 #include <memory>

@@ -2,6 +2,7 @@
 // Options of the NeRF pipeline around the radiance field: scene normalisation, occupancy grid,
 // training schedule, rendering. Defaults follow instant-ngp where a CPU does not force a change
 // (each such change is documented at the field).
+#include <algorithm>
 #include <cstdint>
 
 #include "nerfslam/core/options.h"
@@ -27,13 +28,12 @@ struct SceneOptions {
 };
 
 struct TrainOptions {
-  // Samples per optimiser step. instant-ngp uses 2^18 on a GPU; on 2 CPU cores 2^16 keeps a step at
-  // ~50-70 ms (>= 15 steps/s) and each thread's sample buffers (positions, directions, field
-  // activations: ~2.5 KB per sample) inside L3. Rays per step adapt so the sample count stays constant.
+  // Samples per optimiser step (instant-ngp's target batch is 2^18). Rays per step adapt so the
+  // sample count stays constant.
   int samples_per_step = 1 << 16;
   // A thread marches, evaluates and back-propagates its samples in chunks of about this many (plus
   // at most one ray): the activations kept for the backward pass are a chunk's, so memory does not
-  // grow with samples_per_step (~430 bytes per sample: 7 MB per thread for a chunk of 2^14).
+  // grow with samples_per_step.
   int samples_per_chunk = 1 << 14;
   int max_samples_per_ray = 1024;
   // Adam learning rate: lr * lr_decay_factor^k, k = number of lr_decay_interval boundaries passed
@@ -45,15 +45,15 @@ struct TrainOptions {
   double huber_delta = 0.1;
   // Occupancy grid: updated every grid_update_interval steps. The first update samples every cell;
   // later updates during the first grid_warmup_steps sample a quarter of the cells uniformly
-  // (instant-ngp samples every cell during its warm-up: 2M density queries per update is several
-  // seconds on 2 cores, too much of a 60 s budget); afterwards grid_update_fraction of the cells
-  // uniformly plus as many among the occupied ones. instant-ngp samples 1/4 + 1/4 at 2^18 samples per step; 1/16 + 1/16
-  // keeps the same ratio of grid queries to training samples at 2^16 samples per step.
+  // (instant-ngp samples every cell during its warm-up, 2M density queries per update, which a CPU
+  // cannot afford every 16 steps); afterwards grid_update_fraction of the cells uniformly plus as
+  // many among the occupied ones. instant-ngp samples 1/4 + 1/4 at 2^18 samples per step; 1/16 +
+  // 1/16 keeps the same ratio of grid queries to training samples at 2^16 samples per step.
   int grid_update_interval = 16;
   int grid_warmup_steps = 256;
   double grid_update_fraction = 1.0 / 16.0;
-  // Scales the cells sampled per update (warm-up and after): online training with small steps sets
-  // it to samples_per_step / 2^16 so grid queries stay proportional to the training samples.
+  // Scales the cells sampled per update (warm-up and after). 0: samples_per_step / 2^16 (at most
+  // 1), so grid queries stay proportional to the training samples of smaller steps.
   double grid_update_scale = 1.0;
   double grid_decay = 0.95;
   double grid_threshold = 0.01;
@@ -77,17 +77,25 @@ struct TrainOptions {
     v("lr_decay_factor", lr_decay_factor, "Learning-rate factor per decay", check::range(0.0, 1.0));
     v("huber_delta", huber_delta, "Huber loss delta", check::positive<double>());
     v("grid_update_interval", grid_update_interval, "Steps between occupancy updates", check::positive<int>());
-    v("grid_warmup_steps", grid_warmup_steps, "Steps during which every cell is updated", check::nonNegative<int>());
+    v("grid_warmup_steps", grid_warmup_steps,
+      "Steps during which occupancy updates sample a quarter of the cells uniformly (the first update: every cell)",
+      check::nonNegative<int>());
     v("grid_update_fraction", grid_update_fraction, "Fraction of cells sampled per update after warm-up",
       check::range(0.0, 1.0));
-    v("grid_update_scale", grid_update_scale, "Factor on the cells sampled per occupancy update",
-      check::range(1e-6, 1.0));
+    v("grid_update_scale", grid_update_scale,
+      "Factor on the cells sampled per occupancy update (0: samples_per_step / 65536, at most 1)",
+      check::range(0.0, 1.0));
     v("grid_decay", grid_decay, "Occupancy decay per update", check::range(0.0, 1.0));
     v("grid_threshold", grid_threshold, "Occupancy threshold cap (density * sqrt(3)/1024)", check::positive<double>());
     v("random_background", random_background, "Random background colour per training ray");
     v("snapshot_interval", snapshot_interval, "Steps between divergence snapshots", check::positive<int>());
     v("threads", threads, "Training threads", check::range(1, 256));
     v("seed", seed, "Random seed", check::nonNegative<int64_t>());
+  }
+
+  // grid_update_scale with 0 resolved.
+  double effectiveGridUpdateScale() const {
+    return grid_update_scale > 0 ? grid_update_scale : std::min(1.0, double(samples_per_step) / double(1 << 16));
   }
 };
 

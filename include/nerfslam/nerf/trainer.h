@@ -104,9 +104,18 @@ class Trainer {
     int width, height;
     bool has_alpha;
   };
+  struct StepPlan;
+  struct RayPicker;
   void rollback();
   static ImageData toImageData(const cv::Mat& image);
   void densityBatch(const float* xyz, int n, float* sigma);
+  // The stages of step() (trainer.cpp).
+  void trainThread(ThreadState& ts, const StepPlan& plan);
+  int marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, int total, int* attempts, bool* full);
+  void forwardChunk(ThreadState& ts, int used);
+  void compositeChunk(ThreadState& ts, float delta);
+  double gatherThreads(StepStats* stats);
+  bool applyGradients(int64_t rays, StepStats* stats);
 
   NerfModel& model_;
   std::vector<TrainingView> views_;

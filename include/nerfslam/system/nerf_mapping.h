@@ -14,14 +14,14 @@
 // their running photometric loss (poorly reconstructed views get more rays, none gets fewer than
 // `min_weight` of the mean), so old areas keep being revisited and are not forgotten.
 //
-// Scene bounds: the first keyframes fix a NeRF-space transform from the sparse map (robust extent of
-// points and camera centres, times box_margin, inside an aabb_scale box with cascades). When the map
-// later outgrows the box (more than refit_outside_fraction of the points, or any camera, outside it)
-// the box is re-fitted around everything and the old field is distilled into the new one (its density
-// and colour regressed at random points of the old box) before training continues, so what was learned
-// is carried over rather than dropped.
+// Scene bounds (nerf/scene_box.h): the first keyframes fix a NeRF-space transform from the sparse map
+// (robust extent of points and camera centres, times box_margin, inside an aabb_scale box with
+// cascades). When the map later outgrows the box (more than refit_outside_fraction of the points, or
+// any camera, outside it) the box is re-fitted around everything and the old field is distilled into
+// the new one (nerf/distill.h) before training continues, so what was learned is carried over rather
+// than dropped.
 //
-// Thread budget: the trainer runs `threads` threads at a lower scheduling priority (nice
+// Thread budget: the trainer runs `train.threads` threads at a lower scheduling priority (nice
 // `nice_increment`): tracking keeps its core, and when the machine is short of cores the NeRF yields.
 //
 // Everything that reads the model from another thread (renders, saving, export) goes through
@@ -46,13 +46,21 @@
 
 namespace nerfslam {
 
+// The system's defaults of the trainer where they differ from nerf::TrainOptions': one training
+// thread (tracking keeps its core), small steps (a pose refresh, a box check and a view-weight
+// update can come between any two) and occupancy updates proportional to them.
+inline nerf::TrainOptions nerfMappingTrainDefaults() {
+  nerf::TrainOptions t;
+  t.threads = 1;
+  t.samples_per_step = 1 << 14;
+  t.grid_update_scale = 0.0;  // samples_per_step / 2^16
+  return t;
+}
+
 struct NerfMappingOptions {
   bool enabled = true;
-  int threads = 1;
   int nice_increment = 19;
   double downscale = 2.0;
-  int samples_per_step = 1 << 14;
-  double lr = 1e-2;
   int log2_hashmap_size = 19;
   int keyframe_queue = 32;
   double min_view_distance = 0.02;
@@ -68,22 +76,18 @@ struct NerfMappingOptions {
   int refit_check_steps = 200;
   int distill_steps = 300;
   double psnr_interval_s = 1.0;
-  // An offline run's tracking and mapping now take less than the sequence lasts (the synthetic room,
-  // 600 frames: 15 s), so the NeRF gets little time while they run: 60 s after them reach 24.1 dB
-  // held-out PSNR and 3.1 % depth error there (30 s: 21.8 dB, 9.3 %).
+  // Offline runs: training after the sequence, with the final poses (tracking and mapping may end
+  // before the NeRF has had much time beside them).
   double final_train_seconds = 60.0;
-  int final_threads = 0;  // threads for the final training (0: all hardware threads)
-  int64_t seed = 0;
+  int final_threads = 0;                                  // threads for the final training (0: all hardware threads)
+  nerf::TrainOptions train = nerfMappingTrainDefaults();  // the trainer; train.seed also seeds the field
 
   template <class V>
   void visit(V& v) {
     v("enabled", enabled, "Train the NeRF map online (false: sparse-only, like --no-nerf)");
-    v("threads", threads, "NeRF training threads (tracking keeps its own core)", check::range(1, 256));
     v("nice_increment", nice_increment, "Scheduling niceness added to the NeRF threads (0: same priority)",
       check::range(0, 19));
     v("downscale", downscale, "Keyframe images are downscaled by this factor for training", check::range(1.0, 16.0));
-    v("samples_per_step", samples_per_step, "Ray samples per optimiser step", check::range(256, 1 << 22));
-    v("lr", lr, "Adam learning rate", check::positive<double>());
     v("log2_hashmap_size", log2_hashmap_size, "Hash table entries per level (log2)", check::range(14, 22));
     v("keyframe_queue", keyframe_queue, "Keyframes waiting for the NeRF thread before the oldest are dropped",
       check::range(1, 100000));
@@ -115,7 +119,9 @@ struct NerfMappingOptions {
     v("final_train_seconds", final_train_seconds,
       "Offline runs: seconds of NeRF training after the sequence, with the final poses", check::range(0.0, 1e6));
     v("final_threads", final_threads, "Threads of the final training (0: all hardware threads)", check::range(0, 256));
-    v("seed", seed, "Random seed", check::nonNegative<int64_t>());
+    v("train", train,
+      "The NeRF trainer (nerf::TrainOptions with the system's defaults); train.seed also seeds the field, its "
+      "re-fits and their distillation");
   }
 };
 
@@ -173,6 +179,19 @@ class NerfMapping {
   Camera trainingCamera() const;
 
  private:
+  // A training view: trainer view i is views_[i].
+  struct View {
+    KeyframeId keyframe = -1;
+    uint64_t frame = 0;  // Frame::id of its image
+    SE3 pose;            // current pose
+    bool valid = true;   // false: the keyframe left the map (not sampled)
+  };
+  // A keyframe waiting for the model (before the box is fitted).
+  struct PendingView {
+    View view;
+    nerf::TrainingView training;
+  };
+
   void run();
   void drainQueue(bool wait);
   void addKeyframe(const KeyframeEvent& ev);
@@ -182,11 +201,10 @@ class NerfMapping {
   void updateWeights();
   bool checkRefit();
   void refit();
-  nerf::TrainOptions trainOptions() const;
-  // Trains `to` to reproduce `from` inside from's unit cube; returns the last step's loss.
-  double distill(const nerf::NerfModel& from, nerf::NerfModel& to, int steps) const;
   void measurePsnr();
   void stepOnce();
+  std::vector<Eigen::Vector3d> mapPoints() const;    // positions of the sparse map's points
+  std::vector<Eigen::Vector3d> viewCentres() const;  // camera centres of the views
 
   Map& map_;
   KeyframeBus& bus_;
@@ -200,13 +218,8 @@ class NerfMapping {
   mutable std::mutex model_mutex_;  // model_, trainer_ and the views
   std::unique_ptr<nerf::NerfModel> model_;
   std::unique_ptr<nerf::Trainer> trainer_;
-  std::vector<KeyframeId> view_kf_;
-  std::vector<uint64_t> view_frame_;
-  std::vector<bool> view_valid_;             // false: the keyframe left the map (not sampled)
-  std::vector<SE3> poses_;                   // current pose of each view
-  std::vector<nerf::TrainingView> pending_;  // views waiting for the model (before the box is fitted)
-  std::vector<KeyframeId> pending_kf_;
-  std::vector<uint64_t> pending_frame_;
+  std::vector<View> views_;
+  std::vector<PendingView> pending_;
   Camera train_camera_;
   uint64_t seen_map_version_ = 0;
   int64_t since_refit_check_ = 0;

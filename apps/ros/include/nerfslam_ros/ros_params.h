@@ -8,12 +8,12 @@
 // ROS parameters override the file. Then every option is checked with the constraints its visit()
 // declares (the library's validator); an error names where the value came from, the parameter or the
 // file, as `nerfslam run --config` names the file:
-//   ~nerf_threads: field 'nerf.threads': must be in [1, 256] (got 0)
+//   ~nerf_threads: field 'nerf.train.threads': must be in [1, 256] (got 0)
 // A value of the wrong type, an unknown key inside an option section (with a did-you-mean) and an
 // option given twice (by its path and by an alias) are errors; an unknown top-level parameter is a
 // warning (other code reads the private namespace too, e.g. image_transport's ~image_transport).
 // A name that is both an alias and an option of the struct is the alias when the parameter is a
-// single value and the option section when it is a namespace (~nerf: true, or ~nerf/threads: 2).
+// single value and the option section when it is a namespace (~nerf: true, or ~nerf/train/threads: 2).
 #include <cstdint>
 #include <functional>
 #include <map>
@@ -66,7 +66,7 @@ const XmlRpc::XmlRpcValue* member(const XmlRpc::XmlRpcValue* v, const std::strin
 bool isStruct(const XmlRpc::XmlRpcValue* v);
 std::vector<std::string> memberNames(const XmlRpc::XmlRpcValue* v);
 
-inline std::string paramName(const std::string& path) {  // "nerf.threads" -> "~nerf/threads"
+inline std::string paramName(const std::string& path) {  // "nerf.train.threads" -> "~nerf/train/threads"
   std::string p = "~" + path;
   for (char& c : p)
     if (c == '.') c = '/';

@@ -1,0 +1,48 @@
+#pragma once
+// The NeRF's scene box fitted to a sparse map (points and camera centres), for online training:
+// fitSceneBox places a first box, sceneBoxOutgrown tells when the map has left it, and
+// refitSceneBox grows it around the map and the old box.
+//
+// The box is the robust extent of the points (per axis the 2nd..98th percentile) widened to hold
+// every camera centre, made a cube of side (largest extent) * margin around its centre; the scene
+// transform maps that cube onto the unit cube, and the NeRF's box (aabb_scale times the unit cube,
+// with its cascades) extends beyond it.
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "nerfslam/nerf/rays.h"
+
+namespace nerfslam::nerf {
+
+struct Bounds {
+  Eigen::Vector3d lo, hi;  // lo > hi (infinite) when empty
+};
+
+// Per axis the 2nd..98th percentile of the points, widened to hold every camera centre. Without
+// points or cameras the bounds are empty (lo = +inf, hi = -inf).
+Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras);
+
+// The transform mapping the cube of half-side max(margin * (largest extent of `b`) / 2, min_half)
+// centred on `b` onto the unit cube, with the given aabb_scale.
+SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, double min_half);
+
+// The first box of a map: the robust bounds of points and cameras (camera centres in capture
+// order), with a half-side of at least the distance between the first and the last camera (1e-3
+// at least), so a map that is still nearly flat gets a box of the scale of its motion.
+SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras,
+                           double margin, double aabb_scale);
+
+// True when the map has points and any camera centre, or more than outside_fraction of the points,
+// lies outside the unit cube of `scene` (false without points: nothing to fit a new box to).
+bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
+                      const std::vector<Eigen::Vector3d>& cameras, double outside_fraction);
+
+// A new box around the map that keeps the old box inside it and is at least 1.5 times its size, so
+// re-fits stay rare.
+SceneTransform refitSceneBox(const SceneTransform& old, const std::vector<Eigen::Vector3d>& points,
+                             const std::vector<Eigen::Vector3d>& cameras, double margin, double aabb_scale);
+
+bool insideUnitCube(const Eigen::Vector3d& p);
+
+}  // namespace nerfslam::nerf

@@ -1,0 +1,68 @@
+#include "nerfslam/nerf/scene_box.h"
+
+#include <algorithm>
+#include <limits>
+
+namespace nerfslam::nerf {
+
+Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras) {
+  Bounds b;
+  b.lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  b.hi = -b.lo;
+  if (!points.empty()) {
+    for (int a = 0; a < 3; ++a) {
+      std::vector<double> v;
+      v.reserve(points.size());
+      for (const auto& p : points) v.push_back(p[a]);
+      const size_t k0 = size_t(0.02 * double(v.size() - 1)), k1 = size_t(0.98 * double(v.size() - 1));
+      std::nth_element(v.begin(), v.begin() + long(k0), v.end());
+      b.lo[a] = v[k0];
+      std::nth_element(v.begin(), v.begin() + long(k1), v.end());
+      b.hi[a] = v[k1];
+    }
+  }
+  for (const auto& c : cameras) {
+    b.lo = b.lo.cwiseMin(c);
+    b.hi = b.hi.cwiseMax(c);
+  }
+  return b;
+}
+
+SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, double min_half) {
+  SceneTransform s;
+  const Eigen::Vector3d centre = 0.5 * (b.lo + b.hi);
+  const double half = std::max(0.5 * (b.hi - b.lo).maxCoeff() * margin, min_half);
+  s.scale = 0.5 / half;
+  s.offset = Eigen::Vector3d::Constant(0.5) - s.scale * centre;
+  s.aabb_scale = aabb_scale;
+  return s;
+}
+
+SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras,
+                           double margin, double aabb_scale) {
+  const double baseline = cameras.empty() ? 0.0 : (cameras.front() - cameras.back()).norm();
+  return cubeTransform(robustBounds(points, cameras), margin, aabb_scale, std::max(baseline, 1e-3));
+}
+
+bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
+                      const std::vector<Eigen::Vector3d>& cameras, double outside_fraction) {
+  if (points.empty()) return false;
+  size_t outside = 0;
+  for (const auto& p : points) outside += !insideUnitCube(scene.toNerf(p));
+  bool camera_out = false;
+  for (const auto& c : cameras) camera_out |= !insideUnitCube(scene.toNerf(c));
+  return camera_out || double(outside) > outside_fraction * double(points.size());
+}
+
+SceneTransform refitSceneBox(const SceneTransform& old, const std::vector<Eigen::Vector3d>& points,
+                             const std::vector<Eigen::Vector3d>& cameras, double margin, double aabb_scale) {
+  Bounds b = robustBounds(points, cameras);
+  b.lo = b.lo.cwiseMin(old.toWorld(Eigen::Vector3d::Zero()));
+  b.hi = b.hi.cwiseMax(old.toWorld(Eigen::Vector3d::Ones()));
+  const double old_half = 0.5 / old.scale;
+  return cubeTransform(b, margin, aabb_scale, 1.5 * old_half);
+}
+
+bool insideUnitCube(const Eigen::Vector3d& p) { return (p.array() >= 0.0).all() && (p.array() <= 1.0).all(); }
+
+}  // namespace nerfslam::nerf

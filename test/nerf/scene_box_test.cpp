@@ -1,0 +1,104 @@
+// The scene box (nerf/scene_box.h): robust bounds of a sparse map, the cube transform, the first
+// fit, the outgrown test and the re-fit around the map and the old box.
+#include "nerfslam/nerf/scene_box.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+namespace nerfslam::nerf {
+namespace {
+
+// 11^3 points on a grid over [0, 1]^3.
+std::vector<Eigen::Vector3d> gridPoints() {
+  std::vector<Eigen::Vector3d> p;
+  for (int x = 0; x <= 10; ++x)
+    for (int y = 0; y <= 10; ++y)
+      for (int z = 0; z <= 10; ++z) p.emplace_back(0.1 * x, 0.1 * y, 0.1 * z);
+  return p;
+}
+
+TEST(SceneBox, RobustBoundsIgnoreOutlierPointsButHoldEveryCamera) {
+  std::vector<Eigen::Vector3d> pts = gridPoints();
+  pts.emplace_back(100, -100, 100);  // far outliers: beyond the 2nd..98th percentile
+  pts.emplace_back(-100, 100, -100);
+  const Bounds b = robustBounds(pts, {});
+  EXPECT_TRUE(((b.lo.array() >= 0.0) && (b.lo.array() <= 0.05)).all()) << b.lo.transpose();
+  EXPECT_TRUE(((b.hi.array() >= 0.95) && (b.hi.array() <= 1.0)).all()) << b.hi.transpose();
+  const Bounds c = robustBounds(pts, {Eigen::Vector3d(3, 0.5, -2)});
+  EXPECT_EQ(c.hi.x(), 3.0);
+  EXPECT_EQ(c.lo.z(), -2.0);
+  EXPECT_EQ(c.lo.x(), b.lo.x());
+  const Bounds e = robustBounds({}, {});
+  EXPECT_TRUE((e.lo.array() > e.hi.array()).all());
+}
+
+TEST(SceneBox, CubeTransformMapsTheWidenedBoxOntoTheUnitCube) {
+  const Bounds b{Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(2, 1, 1)};
+  const SceneTransform s = cubeTransform(b, 1.5, 4.0, 0.1);  // half side 1.5 * 2 / 2 = 1.5
+  EXPECT_DOUBLE_EQ(s.scale, 0.5 / 1.5);
+  EXPECT_EQ(s.aabb_scale, 4.0);
+  EXPECT_LT((s.toNerf(Eigen::Vector3d(1, 0.5, 0.5)) - Eigen::Vector3d::Constant(0.5)).norm(), 1e-12);
+  EXPECT_NEAR(s.toNerf(Eigen::Vector3d(2.5, 0.5, 0.5)).x(), 1.0, 1e-12);
+  EXPECT_NEAR(s.toNerf(Eigen::Vector3d(1, -1.0, 0.5)).y(), 0.0, 1e-12);
+  // A box smaller than min_half gets min_half.
+  const SceneTransform t = cubeTransform(b, 1.0, 1.0, 10.0);
+  EXPECT_DOUBLE_EQ(t.scale, 0.05);
+}
+
+TEST(SceneBox, FirstFitHoldsTheMapAndIsAtLeastTheCameraBaseline) {
+  const std::vector<Eigen::Vector3d> pts = gridPoints();
+  const std::vector<Eigen::Vector3d> cams = {Eigen::Vector3d(0.5, 0.5, -1), Eigen::Vector3d(0.6, 0.5, -1)};
+  const SceneTransform s = fitSceneBox(pts, cams, 1.2, 2.0);
+  for (const auto& p : pts) {
+    if ((p.array() >= 0.05).all() && (p.array() <= 0.95).all()) {
+      EXPECT_TRUE(insideUnitCube(s.toNerf(p))) << p.transpose();
+    }
+  }
+  for (const auto& c : cams) EXPECT_TRUE(insideUnitCube(s.toNerf(c)));
+  EXPECT_FALSE(sceneBoxOutgrown(s, pts, cams, 0.05));
+  // A flat, tiny map seen from far apart cameras: the box is as large as their distance.
+  const std::vector<Eigen::Vector3d> flat(30, Eigen::Vector3d(0, 0, 0));
+  const std::vector<Eigen::Vector3d> apart = {Eigen::Vector3d(-2, 0, 0), Eigen::Vector3d(1, 0, 0),
+                                              Eigen::Vector3d(2, 0, 0)};
+  const SceneTransform f = fitSceneBox(flat, apart, 1.0, 1.0);
+  EXPECT_LE(f.scale, 0.5 / 4.0 + 1e-12);  // half side >= |first - last camera| = 4
+}
+
+TEST(SceneBox, OutgrownByACameraOrByMoreThanTheFractionOfPoints) {
+  const std::vector<Eigen::Vector3d> pts = gridPoints();
+  const SceneTransform s = fitSceneBox(pts, {Eigen::Vector3d(0.5, 0.5, 0.5), Eigen::Vector3d(0.5, 0.6, 0.5)}, 1.2, 2.0);
+  EXPECT_FALSE(sceneBoxOutgrown(s, pts, {Eigen::Vector3d(0.5, 0.5, 0.5)}, 0.05));
+  EXPECT_TRUE(sceneBoxOutgrown(s, pts, {Eigen::Vector3d(0.5, 0.5, 5)}, 0.05));
+  std::vector<Eigen::Vector3d> more = pts;
+  for (int i = 0; i < 100; ++i) more.emplace_back(10 + i, 0, 0);  // 7 % of the points outside
+  EXPECT_TRUE(sceneBoxOutgrown(s, more, {}, 0.05));
+  EXPECT_FALSE(sceneBoxOutgrown(s, more, {}, 0.1));
+  EXPECT_FALSE(sceneBoxOutgrown(s, {}, {Eigen::Vector3d(0.5, 0.5, 5)}, 0.05));  // no points: nothing to fit
+}
+
+TEST(SceneBox, RefitHoldsTheOldBoxAndTheMapAndGrowsAtLeastOneAndAHalfTimes) {
+  const std::vector<Eigen::Vector3d> pts = gridPoints();
+  const SceneTransform old =
+      fitSceneBox(pts, {Eigen::Vector3d(0.5, 0.5, 0.5), Eigen::Vector3d(0.5, 0.6, 0.5)}, 1.2, 2.0);
+  // The map moved on: new points and a camera beyond the old box.
+  std::vector<Eigen::Vector3d> grown = pts;
+  for (const auto& p : pts) grown.push_back(p + Eigen::Vector3d(1.5, 0, 0));
+  const std::vector<Eigen::Vector3d> cams = {Eigen::Vector3d(2.8, 0.5, 0.5)};
+  ASSERT_TRUE(sceneBoxOutgrown(old, grown, cams, 0.05));
+  const SceneTransform s = refitSceneBox(old, grown, cams, 1.2, 2.0);
+  EXPECT_LE(s.scale, old.scale / 1.5 + 1e-12);
+  EXPECT_EQ(s.aabb_scale, 2.0);
+  for (const double c : {0.0, 1.0}) EXPECT_TRUE(insideUnitCube(s.toNerf(old.toWorld(Eigen::Vector3d::Constant(c)))));
+  EXPECT_FALSE(sceneBoxOutgrown(s, grown, cams, 0.05));
+}
+
+TEST(SceneBox, InsideUnitCubeIncludesItsFaces) {
+  EXPECT_TRUE(insideUnitCube(Eigen::Vector3d(0, 1, 0.5)));
+  EXPECT_FALSE(insideUnitCube(Eigen::Vector3d(0, 1.0000001, 0.5)));
+  EXPECT_FALSE(insideUnitCube(Eigen::Vector3d(-1e-9, 0.5, 0.5)));
+}
+
+}  // namespace
+}  // namespace nerfslam::nerf
