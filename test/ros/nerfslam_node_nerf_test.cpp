@@ -408,7 +408,8 @@ TEST(NerfslamNodeNerf, InvalidNerfParametersExitNonZeroNamingTheParameter) {
 
   const auto threads = runNode("__name:=bad_nerf_threads_node _nerf_threads:=0");
   EXPECT_EQ(threads.exit_code, 1) << threads.output;
-  EXPECT_NE(threads.output.find("~nerf_threads: field 'nerf.train.threads': must be in [1, 256] (got 0)"), std::string::npos)
+  EXPECT_NE(threads.output.find("~nerf_threads: field 'nerf.train.threads': must be in [1, 256] (got 0)"),
+            std::string::npos)
       << threads.output;
 }
 

@@ -260,7 +260,7 @@ TEST(NerfslamNode, InvalidParametersExitNonZeroNamingTheParameter) {
       << path.output;
   nerfslam::test::TempDir dir;
   const std::string config = (dir / "bad.yaml").string();
-  nerfslam::test::writeText(config, "nerf:\n  threads: 0\n");
+  nerfslam::test::writeText(config, "nerf:\n  train:\n    threads: 0\n");
   const nerfslam::test::CommandResult file = runNode("__name:=bad_config_node _config:=" + config);
   EXPECT_EQ(file.exit_code, 1) << file.output;
   EXPECT_NE(file.output.find(config + ": field 'nerf.train.threads': must be in [1, 256] (got 0)"), std::string::npos)
@@ -280,7 +280,7 @@ TEST(NerfslamNode, ConfigFileThenParametersSetTheOptions) {
   nerfslam::test::writeText(config,
                             "local_map_keyframes: 7\n"
                             "tracking:\n  features:\n    max_features: 1500\n"
-                            "nerf:\n  enabled: false\n  threads: 3\n");
+                            "nerf:\n  enabled: false\n  train:\n    threads: 3\n");
   const nerfslam::test::CommandResult r =
       nerfslam::test::runCommand("timeout -s INT 10 '" NERFSLAM_NODE_PATH "' __name:=config_node _config:=" + config +
                                  " _max_features:=1800 _nerf/train/threads:=2 image:=/config_node_test/image");

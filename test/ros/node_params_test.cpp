@@ -34,7 +34,7 @@ TEST(NodeParams, ConfigThenParametersByPathAndAlias) {
   const auto config = dir / "system.yaml";
   nerfslam::test::writeText(config,
                             "tracking:\n  features:\n    max_features: 1500\n"
-                            "nerf:\n  threads: 3\n  nice_increment: 5\n"
+                            "nerf:\n  train:\n    threads: 3\n  nice_increment: 5\n"
                             "local_map_keyframes: 7\n");
   XmlRpcValue tree;
   tree["config"] = str(config.string());
@@ -98,7 +98,7 @@ TEST(NodeParams, InvalidValuesAreRefusedNamingWhereTheyCameFrom) {
   {
     nerfslam::test::TempDir dir;
     const auto config = dir / "bad.yaml";
-    nerfslam::test::writeText(config, "nerf:\n  threads: 0\n");
+    nerfslam::test::writeText(config, "nerf:\n  train:\n    threads: 0\n");
     XmlRpcValue tree;
     tree["config"] = str(config.string());
     SlamNodeParams p;
@@ -131,7 +131,7 @@ TEST(NodeParams, WrongTypesUnknownKeysAndOptionsGivenTwice) {
   tree["queue_size"] = str("two");
   tree["tracking"]["featurs"]["max_features"] = 1500;
   tree["nerf_threads"] = 2;
-  tree["nerf"]["threads"] = 3;
+  tree["nerf"]["train"]["threads"] = 3;
   tree["max_featres"] = 1500;
   tree["image_transport"] = str("compressed");  // read by image_transport: no warning
   SlamNodeParams p;
@@ -161,7 +161,7 @@ TEST(NodeParams, NerfIsTheSwitchAsAValueAndTheSectionAsANamespace) {
   {
     XmlRpcValue tree;
     tree["nerf"]["enabled"] = false;
-    tree["nerf"]["threads"] = 2;
+    tree["nerf"]["train"]["threads"] = 2;
     SlamNodeParams p;
     const ParamReport r = nerfslam::rosnode::readSlamNodeParams(tree, p);
     EXPECT_TRUE(r.ok()) << joined(r.errors);
