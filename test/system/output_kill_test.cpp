@@ -5,15 +5,24 @@
 // it with SIGKILL at random times, >= 50 times; after every kill each file must be absent (never
 // written yet) or load and equal A or B exactly: a killed write never leaves a truncated file in
 // place of a good one (the writers write a temporary file and rename it).
+//
+// The kill times follow the child, not the clock: the child appends a byte to rounds.log after every
+// round of the five writes; the parent measures one round's duration, and every kill lands at a
+// uniformly random moment of the two rounds after the child's first one. So the kills spread over
+// every writer whatever the build's speed (Release, or ~5x slower under AddressSanitizer).
 #include <gtest/gtest.h>
 
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <chrono>
 #include <cstdlib>
 #include <random>
-#include <regex>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -121,7 +130,41 @@ TEST(OutputKillHelper, WriteLoopChild) {
     nerf::savePointCloud(clouds[v], dir / "cloud.ply");
     nerf::savePointCloud(clouds[v], dir / "cloud.pcd");
     nerf::saveMesh(meshes[v], dir / "mesh.ply");
+    std::FILE* f = std::fopen((dir / "rounds.log").c_str(), "ab");
+    if (!f) std::abort();
+    std::fputc('.', f);
+    std::fclose(f);
   }
+}
+
+// Rounds of writes the helper children have completed so far (bytes of rounds.log).
+uint64_t roundsDone(const fs::path& dir) {
+  std::error_code ec;
+  const auto n = fs::file_size(dir / "rounds.log", ec);
+  return ec ? 0 : uint64_t(n);
+}
+
+// Starts the helper child writing into `dir`; returns its pid.
+pid_t startWriter(const fs::path& self, const fs::path& dir) {
+  const pid_t pid = fork();
+  if (pid == 0) {
+    setenv(kEnv, dir.c_str(), 1);
+    execl(self.c_str(), self.c_str(), "--gtest_filter=OutputKillHelper.WriteLoopChild", static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  return pid;
+}
+
+// Waits until the writers have completed more than `rounds` rounds; false after `timeout_s` or when
+// the child `pid` ended.
+bool waitForRound(const fs::path& dir, uint64_t rounds, pid_t pid, double timeout_s) {
+  const auto t0 = std::chrono::steady_clock::now();
+  while (roundsDone(dir) <= rounds) {
+    if (waitpid(pid, nullptr, WNOHANG) == pid) return false;
+    if (std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() > timeout_s) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  return true;
 }
 
 TEST(OutputKill, EveryWriterSurvivesSigkill) {
@@ -134,15 +177,37 @@ TEST(OutputKill, EveryWriterSurvivesSigkill) {
                                                                                {"mesh.ply", whichMesh}};
   std::map<std::string, std::array<int, 2>> seen;
   std::mt19937 rng(2024);
-  // The child needs ~0.3 s to start; one round of the five writes takes a few hundred ms.
-  std::uniform_real_distribution<double> when(0.3, 1.5);
+  double round_s = 0.0;  // one round of the five writes, measured in the first child
   int kills = 0, temp_left = 0;
   for (int it = 0; it < 50; ++it) {
-    const double after = when(rng);
-    const auto r =
-        test::runCommand(fmt::format("{}='{}' timeout -s KILL {:.3f} '{}' --gtest_filter={}", kEnv, tmp.path().string(),
-                                     after, self.string(), "OutputKillHelper.WriteLoopChild"));
-    ASSERT_EQ(r.exit_code, 128 + 9) << "the helper was expected to be killed after " << after << " s: " << r.output;
+    const pid_t pid = startWriter(self, tmp.path());
+    ASSERT_GT(pid, 0) << "fork failed";
+    // A failed assertion below must not leave the endless writer running.
+    struct Reaper {
+      pid_t pid;
+      bool reaped = false;
+      ~Reaper() {
+        if (!reaped) {
+          kill(pid, SIGKILL);
+          waitpid(pid, nullptr, 0);
+        }
+      }
+    } reaper{pid};
+    const uint64_t before = roundsDone(tmp.path());
+    ASSERT_TRUE(waitForRound(tmp.path(), before, pid, 300.0)) << "the helper did not complete a round of writes";
+    if (it == 0) {
+      const auto t1 = std::chrono::steady_clock::now();
+      ASSERT_TRUE(waitForRound(tmp.path(), before + 1, pid, 300.0)) << "the helper did not complete a second round";
+      round_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+    }
+    const double after = std::uniform_real_distribution<double>(0.0, 2.0 * round_s)(rng);
+    std::this_thread::sleep_for(std::chrono::duration<double>(after));
+    ASSERT_EQ(kill(pid, SIGKILL), 0);
+    int status = 0;
+    ASSERT_EQ(waitpid(pid, &status, 0), pid);
+    reaper.reaped = true;
+    ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL)
+        << "the helper was expected to be killed " << after << " s after its first round (status " << status << ")";
     ++kills;
     for (const auto& [name, which] : files) {
       const fs::path p = tmp / name;
