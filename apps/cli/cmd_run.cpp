@@ -3,6 +3,7 @@
 
 #include "command.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/stop_signal.h"
 #include "nerfslam/system/runner.h"
 
 namespace {
@@ -64,6 +65,8 @@ nerfslam::cli::Registrar reg(
           o.map_mode = a->localize ? nerfslam::MapMode::kLocalize : nerfslam::MapMode::kExtend;
         }
         if (!a->save_map.empty()) o.save_map = a->save_map;
+        // Ctrl-C / SIGTERM: stop reading and write what exists (core/stop_signal.h).
+        nerfslam::installStopHandlers();
         const nerfslam::RunResult r = nerfslam::runSlam(o);
         return r.exit_code;
       };

@@ -2,6 +2,7 @@
 // holding out every Nth view for testing. Writes model.nerf, report.json, psnr_curve.csv and
 // side-by-side test renders (render | ground truth) into --out, all atomically.
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -15,6 +16,7 @@
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/stop_signal.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/io/dataset.h"
@@ -99,6 +101,7 @@ Eval evaluate(const nerf::NerfModel& model, const std::vector<nerf::TrainingView
 }
 
 int runTrain(const TrainArgs& a) {
+  if (!std::isfinite(a.seconds)) fail("train: --seconds must be a finite number of seconds (got {})", a.seconds);
   if (a.seconds <= 0 && a.steps <= 0) fail("train: give --seconds or --steps");
   const fs::path out(a.out);
   ensureDirectory(out);
@@ -122,7 +125,10 @@ int runTrain(const TrainArgs& a) {
   double train_seconds = 0, next_eval = a.eval_interval;
   int64_t samples = 0;
   double last_loss = 0;
-  while (true) {
+  // Ctrl-C / SIGTERM (core/stop_signal.h): the first stops the training and the model is evaluated
+  // and saved as it is; a second skips the evaluation renders; a third exits at once.
+  installStopHandlers();
+  while (stopRequests() == 0) {
     if (a.steps > 0 && trainer.steps() >= a.steps) break;
     if (a.seconds > 0 && train_seconds >= a.seconds) break;
     const auto t0 = Clock::now();
@@ -145,11 +151,17 @@ int runTrain(const TrainArgs& a) {
       next_eval += a.eval_interval;
     }
   }
-  std::vector<cv::Mat> renders;
-  const Eval final_eval = evaluate(model, split.test, split.test.size(), a.threads, true, &renders);
-  if (!split.test.empty()) curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), final_eval.psnr);
-
+  const bool interrupted = stopRequests() > 0;
+  if (interrupted) spdlog::warn("train: stopped by a signal after {} steps ({:.1f} s)", trainer.steps(), train_seconds);
+  // The model first: it is what the training made, and a further signal must not lose it.
   nerf::saveModel(model, out / "model.nerf");
+  std::vector<cv::Mat> renders;
+  Eval final_eval;
+  const bool evaluated = stopRequests() < 2;
+  if (evaluated) final_eval = evaluate(model, split.test, split.test.size(), a.threads, true, &renders);
+  if (evaluated && !split.test.empty())
+    curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), final_eval.psnr);
+
   for (size_t i = 0; i < renders.size(); ++i) {
     AtomicOutput o(out / fmt::format("test_{:03d}_{}.png", i, split.test_names[i]));
     if (!cv::imwrite(o.tempPath().string(), renders[i])) fail("{}: cannot write image", o.path().string());
@@ -164,8 +176,14 @@ int runTrain(const TrainArgs& a) {
   rep["seed"] = a.seed;
   rep["train_views"] = num_train;
   rep["test_views"] = split.test.size();
-  rep["psnr_test_mean"] = final_eval.psnr;
-  rep["ssim_test_mean"] = final_eval.ssim;
+  rep["interrupted"] = interrupted;
+  if (evaluated) {
+    rep["psnr_test_mean"] = final_eval.psnr;
+    rep["ssim_test_mean"] = final_eval.ssim;
+  } else {
+    rep["psnr_test_mean"] = nullptr;  // stopped twice: not evaluated
+    rep["ssim_test_mean"] = nullptr;
+  }
   rep["steps"] = trainer.steps();
   rep["train_seconds"] = train_seconds;
   rep["samples_per_second"] = train_seconds > 0 ? double(samples) / train_seconds : 0.0;
@@ -183,7 +201,7 @@ int runTrain(const TrainArgs& a) {
                final_eval.ssim, peakRssMb());
   std::printf("psnr_test_mean %.3f ssim_test_mean %.4f steps %lld train_seconds %.2f\n", final_eval.psnr,
               final_eval.ssim, static_cast<long long>(trainer.steps()), train_seconds);
-  return 0;
+  return interrupted ? interruptedExitCode() : 0;
 }
 
 Registrar reg(

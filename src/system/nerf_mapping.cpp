@@ -351,7 +351,7 @@ void NerfMapping::resume(const std::filesystem::path& model_file, bool train) {
                views_.size(), train ? "" : "; frozen (localisation only)");
 }
 
-int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads) {
+int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const std::function<bool()>& stop) {
   std::lock_guard<std::mutex> lock(model_mutex_);
   if (!trainer_ || frozen_ || (seconds <= 0 && steps <= 0)) return 0;
   refreshPoses();
@@ -366,6 +366,7 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads) {
   while (trainer_) {
     if (steps > 0 && done >= steps) break;
     if (seconds > 0 && std::chrono::duration<double>(Clock::now() - t0).count() >= seconds) break;
+    if (stop && stop()) break;
     stepOnce();
     ++done;
   }

@@ -159,6 +159,11 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
     rep["nerf_error"] = "no NeRF model: the map never initialised";
     return;
   }
+  if (eo.model_only) {
+    ensureDirectory(out / "nerf");
+    nerf->withModel([&](nerf::NerfModel& model) { nerf::saveModel(model, out / "nerf" / "model.nerf"); });
+    return;
+  }
   const Camera cam = nerf->trainingCamera();
   const std::vector<KeyframeId> view_kfs = nerf->viewKeyframes();
 

@@ -5,8 +5,10 @@
 #include <chrono>
 #include <cstdio>
 #include <limits>
+#include <mutex>
 #include <thread>
 
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 #include <opencv2/imgproc.hpp>
 
@@ -14,6 +16,7 @@
 #include "nerfslam/core/bounded_queue.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/options_yaml.h"
+#include "nerfslam/core/stop_signal.h"
 #include "nerfslam/core/thread.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/trajectory_metrics.h"
@@ -105,7 +108,14 @@ struct FramePipe {
   std::atomic<std::size_t> queued{0};        // frames the reader handed over
   std::atomic<std::size_t> out_of_order{0};  // frames skipped for a timestamp not after the previous one
   std::atomic<bool> aborted{false};          // the tracking thread failed
+  std::atomic<bool> tracking_done{false};    // the tracking thread has left its loop
+  // Stopped by a signal (core/stop_signal.h): the index of the first frame not read, -1 otherwise.
+  std::atomic<long long> stopped_at_frame{-1};
   std::string read_failure, tracking_failure;
+  // The tracked poses as tracking made them (before the bundle adjustments that follow), appended by
+  // the tracking thread and read by the checkpoint writer on the main thread.
+  std::mutex live_mutex;
+  Trajectory live;
   std::vector<std::string> image_problems;  // by frame: describeImageProblem() ("" for most)
 };
 
@@ -139,6 +149,10 @@ void readFrames(const Dataset& ds, SlamSystem& slam, const RunOptions& ro, const
   const auto wall0 = Clock::now();
   double t_first = 0, last_ts = -std::numeric_limits<double>::infinity();
   for (std::size_t i = 0; i < ds.size() && !pipe.aborted; ++i) {
+    if (stopRequests() > 0) {
+      pipe.stopped_at_frame = static_cast<long long>(i);
+      break;
+    }
     InputFrame f;
     try {
       // Colour for the NeRF (tracking converts to grey itself).
@@ -162,7 +176,9 @@ void readFrames(const Dataset& ds, SlamSystem& slam, const RunOptions& ro, const
     if (ro.realtime) {
       const auto due =
           wall0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(f.timestamp - t_first));
-      std::this_thread::sleep_until(due);
+      // In slices, so that a stop request does not wait for a long gap between timestamps.
+      while (Clock::now() < due && stopRequests() == 0)
+        std::this_thread::sleep_until(std::min(due, Clock::now() + std::chrono::milliseconds(100)));
       pipe.queue.tryPush(std::move(f));  // drops the oldest waiting frame when tracking lags
       ++pipe.queued;
     } else {
@@ -204,7 +220,12 @@ void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clo
   while (auto f = pipe.queue.pop()) {
     try {
       const bool had_map = slam.initialized();
-      stats.addFrame(slam.trackFrame(f->image, f->timestamp, f->index), had_map);
+      const FrameRecord rec = slam.trackFrame(f->image, f->timestamp, f->index);
+      stats.addFrame(rec, had_map);
+      if (rec.tracked) {
+        std::lock_guard<std::mutex> lock(pipe.live_mutex);
+        pipe.live.push_back({rec.timestamp, rec.T_world_cam});
+      }
     } catch (const std::exception& e) {
       pipe.tracking_failure = fmt::format("frame {}: {}", f->index, e.what());
       spdlog::error("{}", pipe.tracking_failure);
@@ -222,12 +243,77 @@ void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clo
   }
 }
 
-// After the last frame: the NeRF trained for final_train_seconds more with the final poses.
-void trainNerfFinal(SlamSystem& slam, const SystemOptions& sys) {
+// While tracking runs: trajectory.txt (the poses as tracked) and report.json ("in_progress": true)
+// replaced atomically every few seconds, so a run that is killed (SIGKILL, a power cut) leaves a
+// trajectory prefix that `nerfslam eval` reads. The final outputs replace both.
+class Checkpointer {
+ public:
+  Checkpointer(const std::filesystem::path& out, const Dataset& ds) : out_(out), ds_(ds) {}
+
+  // Writes when kIntervalSeconds (or ten times the last write's duration) have passed.
+  void maybeWrite(FramePipe& pipe, Clock::time_point run0) {
+    const auto now = Clock::now();
+    if (now - last_ < interval_) return;
+    last_ = now;
+    {
+      std::lock_guard<std::mutex> lock(pipe.live_mutex);
+      if (pipe.live.size() == written_) return;
+      traj_.insert(traj_.end(), pipe.live.begin() + static_cast<std::ptrdiff_t>(traj_.size()), pipe.live.end());
+    }
+    try {
+      writeTumTrajectory(out_ / "trajectory.txt", traj_);
+      nlohmann::json rep;
+      rep["in_progress"] = true;
+      rep["dataset"] = ds_.root().string();
+      rep["frames"] = ds_.size();
+      rep["frames_processed"] = pipe.processed.load();
+      rep["frames_tracked"] = traj_.size();
+      rep["wall_time_s"] = std::chrono::duration<double>(now - run0).count();
+      writeStringAtomic(out_ / "report.json", rep.dump(2) + "\n");
+      written_ = traj_.size();
+    } catch (const std::exception& e) {
+      spdlog::warn("checkpoint: {}", e.what());  // the final write reports a lasting problem
+    }
+    interval_ = std::max<Clock::duration>(
+        std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(kIntervalSeconds)),
+        10 * (Clock::now() - now));
+  }
+
+  static constexpr double kIntervalSeconds = 2.0;
+
+ private:
+  std::filesystem::path out_;
+  const Dataset& ds_;
+  Trajectory traj_;
+  std::size_t written_ = 0;
+  Clock::time_point last_ = Clock::now();
+  Clock::duration interval_ = std::chrono::seconds(2);
+};
+
+// After the last frame: the NeRF trained for final_train_seconds more with the final poses; after a
+// stop request at most kShortenedFinalSeconds more, after a second one no more. Returns false when
+// a second request skipped or ended it.
+bool trainNerfFinal(SlamSystem& slam, const SystemOptions& sys) {
   NerfMapping* n = slam.nerf();
-  if (!n || !n->hasModel() || !(sys.nerf.final_train_seconds > 0)) return;
-  std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n", sys.nerf.final_train_seconds);
-  n->trainFor(sys.nerf.final_train_seconds, 0, resolveThreads(sys.nerf.final_threads));
+  if (!n || !n->hasModel() || !(sys.nerf.final_train_seconds > 0)) return true;
+  if (stopRequests() >= 2) return false;
+  double seconds = sys.nerf.final_train_seconds;
+  if (stopRequests() >= 1) seconds = std::min(seconds, kShortenedFinalSeconds);
+  std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n", seconds);
+  // A first request during the training leaves it kShortenedFinalSeconds from then; a second ends it.
+  auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
+  bool shortened = stopRequests() >= 1;
+  n->trainFor(seconds, 0, resolveThreads(sys.nerf.final_threads), [&] {
+    const int requests = stopRequests();
+    if (requests >= 2) return true;
+    if (requests >= 1 && !shortened) {
+      shortened = true;
+      deadline = std::min(deadline, Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                                       std::chrono::duration<double>(kShortenedFinalSeconds)));
+    }
+    return Clock::now() >= deadline;
+  });
+  return stopRequests() < 2;
 }
 
 // ---- Outputs: the files and report.json.
@@ -345,14 +431,14 @@ GroundTruthEval evaluateAgainstGroundTruth(const Dataset& ds, const Trajectory& 
 // trajectory.txt, keyframes.txt, map_points.ply, the NeRF outputs (run_outputs.h; a failure there is
 // nerf_error in the report) and the previews.
 void writeRunFiles(SlamSystem& slam, const Dataset& ds, const Trajectory& traj, const GroundTruthEval& ge,
-                   const std::filesystem::path& out, nlohmann::json& rep) {
+                   const std::filesystem::path& out, const NerfEvalOptions& eo, nlohmann::json& rep) {
   writeTumTrajectory(out / "trajectory.txt", traj);
   writeTumTrajectory(out / "keyframes.txt", slam.keyframeTrajectory());
   writeMapPly(out / "map_points.ply", slam.map());
   render::PreviewCloud dense;
   if (slam.nerf()) {
     try {
-      writeNerfOutputs(slam, ds, traj, ge.alignment, out, NerfEvalOptions{}, rep, &dense);
+      writeNerfOutputs(slam, ds, traj, ge.alignment, out, eo, rep, &dense);
     } catch (const std::exception& e) {
       rep["nerf_error"] = e.what();
       spdlog::error("NeRF outputs: {}", e.what());
@@ -408,6 +494,14 @@ void printSummary(const SlamSystem& slam, const Dataset& ds, const Trajectory& t
                                    100 * rep["nerf_depth_median_abs_rel"].get<double>())
                            .c_str()
                      : "");
+  if (rep.value("interrupted", false))
+    std::fprintf(stderr, "interrupted%s; skipped: %s\n",
+                 rep["interrupted_at_frame"].is_null()
+                     ? " after the last frame"
+                     : fmt::format(" at frame {}", rep["interrupted_at_frame"].get<long long>()).c_str(),
+                 rep["skipped"].empty()
+                     ? "nothing"
+                     : fmt::format("{}", fmt::join(rep["skipped"].get<std::vector<std::string>>(), ", ")).c_str());
   std::fprintf(stderr, "results in %s (report.json, trajectory.txt, map_preview.png%s)\n", out.string().c_str(),
                slam.nerf() ? ", nerf/, nerf_cloud.ply, mesh.ply" : "");
 }
@@ -446,12 +540,28 @@ RunResult runSlam(const RunOptions& ro) {
   RunStats stats;
   std::thread reader([&] { readFrames(*ds, slam, ro, sys, pipe, stats); });
   const auto run0 = Clock::now();
-  std::thread tracker([&] { trackFrames(slam, ro, ds->size(), run0, pipe, stats); });
+  std::thread tracker([&] {
+    trackFrames(slam, ro, ds->size(), run0, pipe, stats);
+    pipe.tracking_done = true;
+  });
+  // The main thread keeps trajectory.txt and report.json up to date meanwhile.
+  Checkpointer checkpoint(ro.out, *ds);
+  while (!pipe.tracking_done) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    checkpoint.maybeWrite(pipe, run0);
+  }
   reader.join();
   tracker.join();
   const double wall_s = std::chrono::duration<double>(Clock::now() - run0).count();
-  slam.finish(true);
-  trainNerfFinal(slam, sys);
+  // Stopped by a signal (core/stop_signal.h): a second one skips what only improves the result.
+  std::vector<std::string> skipped;
+  const bool global_ba = stopRequests() < 2;
+  if (!global_ba) skipped.push_back("global_ba");
+  slam.finish(global_ba);
+  if (!trainNerfFinal(slam, sys)) skipped.push_back("final_nerf_training");
+  NerfEvalOptions eval_options;
+  eval_options.model_only = stopRequests() >= 2;
+  if (eval_options.model_only && slam.nerf()) skipped.push_back("nerf_renders_cloud_mesh");
 
   // Outputs.
   const Trajectory traj = slam.trajectory();
@@ -461,8 +571,17 @@ RunResult runSlam(const RunOptions& ro) {
   addTrackingContinuity(slam.records(), rep);
   const std::string failure = runFailure(pipe, slam);
   if (!failure.empty()) rep["failure"] = failure;
+  const bool interrupted = stopRequests() > 0;
+  rep["interrupted"] = interrupted;
+  if (interrupted) {
+    rep["interrupted_by_signal"] = lastStopSignal();
+    // The first frame not read; null when the signal came after the last frame was read.
+    rep["interrupted_at_frame"] =
+        pipe.stopped_at_frame >= 0 ? nlohmann::json(pipe.stopped_at_frame.load()) : nlohmann::json(nullptr);
+    rep["skipped"] = skipped;
+  }
   const GroundTruthEval ge = evaluateAgainstGroundTruth(*ds, traj, rep);
-  writeRunFiles(slam, *ds, traj, ge, ro.out, rep);
+  writeRunFiles(slam, *ds, traj, ge, ro.out, eval_options, rep);
   const bool map_save_failed = saveRunMap(slam, ro, camera, sys, rep);
   writeStringAtomic(ro.out / "report.json", rep.dump(2) + "\n");
   printSummary(slam, *ds, traj, rep, failure, pipe.processed.load() / std::max(wall_s, 1e-9), ro.out);
@@ -470,7 +589,8 @@ RunResult runSlam(const RunOptions& ro) {
   RunResult res;
   res.report = rep;
   res.initialized = slam.initialized();
-  res.exit_code = (!pipe.read_failure.empty() || !pipe.tracking_failure.empty() || map_save_failed) ? 1 : 0;
+  const bool failed = !pipe.read_failure.empty() || !pipe.tracking_failure.empty() || map_save_failed;
+  res.exit_code = failed ? 1 : interrupted ? interruptedExitCode() : 0;
   return res;
 }
 

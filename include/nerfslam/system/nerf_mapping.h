@@ -153,8 +153,9 @@ class NerfMapping {
   void stop();
   // Trains in the calling thread (after stop()): `seconds` of wall time or `steps` steps, whichever
   // ends first (0: not limiting; both 0: nothing), with the latest poses, on `threads` threads from
-  // now on (0: unchanged). Returns the steps made.
-  int64_t trainFor(double seconds, int64_t steps = 0, int threads = 0);
+  // now on (0: unchanged). `stop`, when given, is asked before every step and ends the training
+  // when it returns true (a stopped run). Returns the steps made.
+  int64_t trainFor(double seconds, int64_t steps = 0, int threads = 0, const std::function<bool()>& stop = {});
 
   NerfMappingStats stats() const;
   bool hasModel() const;

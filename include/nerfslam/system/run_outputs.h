@@ -28,6 +28,9 @@ struct NerfEvalOptions {
   int keyframe_frames = 4;  // training views rendered and compared
   int cloud_views = 8;      // training views back-projected into nerf_cloud
   int threads = 2;
+  // Write nerf/model.nerf and the training statistics only: no renders, cloud or mesh (a run
+  // stopped a second time, core/stop_signal.h).
+  bool model_only = false;
 };
 
 // Renders the held-out frames and keyframes, measures PSNR (and, with `gt_alignment` and depth
