@@ -70,7 +70,8 @@ case $kind in
           'TrackingFaults\.(SuddenJumpIsLostThenRelocalisedWhenTheViewReturns|BlackFramesFrozenFrameAndGapAreReportedAndRecovered)$'
           'RunSystem\.(Kitti06First51TracksEveryFrameAccurately|NewTsukubaFirst75|WithoutDatasetRunsTheSyntheticRoomDemo)$'
           'MapStoreCli\.(ExtendAddsKeyframesToASavedMap|LocalizesInASavedMapAlongAnotherTrajectory)$'
-          'SyntheticSlam\.(LocalizationOnlySwitchStopsAndResumesMapping|HandheldRoomTracksEveryFrameAccurately)$')
+          'SyntheticSlam\.(LocalizationOnlySwitchStopsAndResumesMapping|HandheldRoomTracksEveryFrameAccurately)$'
+          'RunStop\.' 'TrainStop\.')  # signals timed for Release speed on whole KITTI / lego runs
     timeout=1800
     targets=(all)
     ;;
