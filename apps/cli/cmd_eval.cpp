@@ -1,5 +1,6 @@
 // `nerfslam eval`: APE/RPE of an estimated trajectory against a reference, computed like evo
 // (evo_ape / evo_rpe) so the numbers can be compared with published ones.
+#include <filesystem>
 #include <memory>
 #include <string>
 
@@ -18,8 +19,29 @@ struct EvalArgs {
   nerfslam::eval::TrajectoryEvalOptions options;
 };
 
+// The file, refused when its timestamps go back (poses out of time order would be associated
+// silently with the wrong reference poses); repeated timestamps, which real files have (an OpenVINS
+// estimate, a TUM ground truth), are counted in a warning.
 nerfslam::Trajectory load(const std::string& path, nerfslam::TrajectoryFormat format, const std::string& times) {
-  return nerfslam::readTrajectory(path, format, times);
+  nerfslam::Trajectory t = nerfslam::readTrajectory(path, format, times);
+  std::size_t repeated = 0, first_repeated = 0;
+  for (std::size_t i = 1; i < t.size(); ++i) {
+    if (t[i].timestamp < t[i - 1].timestamp)
+      nerfslam::fail("{}: pose {} (timestamp {:.6f}) is before pose {} ({:.6f}): a trajectory must be in time order",
+                     path, i + 1, t[i].timestamp, i, t[i - 1].timestamp);
+    if (t[i].timestamp == t[i - 1].timestamp && repeated++ == 0) first_repeated = i + 1;
+  }
+  if (repeated > 0)
+    fmt::print(stderr, "warning: {}: {} pose(s) repeat the previous pose's timestamp (the first: pose {})\n", path,
+               repeated, first_repeated);
+  return t;
+}
+
+// True when `a` and `b` name the same file (both may not exist yet).
+bool sameFile(const std::string& a, const std::string& b) {
+  std::error_code ec1, ec2;
+  const auto ca = std::filesystem::weakly_canonical(a, ec1), cb = std::filesystem::weakly_canonical(b, ec2);
+  return !ec1 && !ec2 && ca == cb;
 }
 
 nerfslam::cli::Registrar reg(
@@ -54,6 +76,9 @@ nerfslam::cli::Registrar reg(
                    "Choose RPE pairs on the reference instead of the estimate");
       sub.add_option("--json", a->json, "Write the results as JSON to this file (atomically)");
       return [a]() -> int {
+        for (const std::string* input : {&a->ref, &a->est})
+          if (!a->json.empty() && sameFile(a->json, *input))
+            nerfslam::fail("eval: --json {} is one of the inputs; choose another output file", a->json);
         const auto format = nerfslam::parseTrajectoryFormat(a->format);
         const nerfslam::Trajectory ref = load(a->ref, format, a->ref_times);
         const nerfslam::Trajectory est = load(a->est, format, a->est_times.empty() ? a->ref_times : a->est_times);

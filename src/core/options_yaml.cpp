@@ -4,7 +4,9 @@
 #include <cerrno>
 #include <cstdlib>
 #include <fstream>
+#include <map>
 #include <sstream>
+#include <vector>
 
 namespace nerfslam {
 
@@ -45,7 +47,41 @@ std::vector<std::string> yamlKeys(const YAML::Node& map) {
   return keys;
 }
 
+namespace {
+
+// A key as a message shows it: at most 60 characters.
+std::string cutForMessage(const std::string& s) { return s.size() <= 60 ? s : s.substr(0, 57) + "..."; }
+
+// yaml-cpp keeps every pair of a map whose key is given twice, and lookups find the first: refused
+// instead, naming both lines. Iterative (a fuzzed file may nest deeply).
+void refuseDuplicateKeys(const YAML::Node& root, const std::filesystem::path& path) {
+  std::vector<YAML::Node> todo{root};
+  while (!todo.empty()) {
+    const YAML::Node n = todo.back();
+    todo.pop_back();
+    if (n.IsMap()) {
+      std::map<std::string, int> first_line;
+      for (const auto& kv : n) {
+        if (kv.first.IsScalar()) {
+          const int line = kv.first.Mark().line + 1;
+          const auto [it, fresh] = first_line.emplace(kv.first.Scalar(), line);
+          if (!fresh)
+            fail("{}: line {}: key '{}' given twice (first at line {}); give each option once", path.string(), line,
+                 cutForMessage(kv.first.Scalar()), it->second);
+        }
+        todo.push_back(kv.second);
+      }
+    } else if (n.IsSequence()) {
+      for (const auto& e : n) todo.push_back(e);
+    }
+  }
+}
+
+}  // namespace
+
 YAML::Node loadYamlFile(const std::filesystem::path& path) {
+  std::error_code dir_ec;
+  if (std::filesystem::is_directory(path, dir_ec)) fail("{}: is a directory, not a YAML file", path.string());
   std::ifstream in(path);
   if (!in) {
     std::error_code ec;
@@ -54,11 +90,14 @@ YAML::Node loadYamlFile(const std::filesystem::path& path) {
   }
   std::stringstream ss;
   ss << in.rdbuf();
+  YAML::Node root;
   try {
-    return YAML::Load(ss.str());
+    root = YAML::Load(ss.str());
   } catch (const YAML::Exception& e) {
     fail("{}: invalid YAML at line {}, column {}: {}", path.string(), e.mark.line + 1, e.mark.column + 1, e.msg);
   }
+  refuseDuplicateKeys(root, path);
+  return root;
 }
 
 std::string formatDouble(double x) {

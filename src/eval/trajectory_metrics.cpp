@@ -304,7 +304,9 @@ TrajectoryReport evaluateTrajectory(const Trajectory& ref, const Trajectory& est
     rep.has_rpe = true;
   }
   rep.ref_path_length = pathLength(ref_p);
-  rep.ape_rmse_percent = rep.ref_path_length > 0 ? 100.0 * rep.ape.rmse / rep.ref_path_length : 0.0;
+  // Undefined (NaN; null in JSON) for a reference that does not move.
+  rep.ape_rmse_percent =
+      rep.ref_path_length > 0 ? 100.0 * rep.ape.rmse / rep.ref_path_length : std::numeric_limits<double>::quiet_NaN();
   return rep;
 }
 
@@ -337,8 +339,11 @@ std::string formatReport(const TrajectoryReport& r) {
   out += fmt::format("Associated {} of {} reference / {} estimated poses\n", r.matched, r.ref_poses, r.est_poses);
   if (r.align == "sim3" || r.align == "scale") out += fmt::format("Scale correction: {:.6f}\n", r.scale);
   out += "\nAPE w.r.t. translation part (m)\n" + alignTitle(r.align) + "\n\n" + statsBlock(r.ape);
-  out +=
-      fmt::format("\nreference path length {:.6f} m, APE rmse {:.4f} % of it\n", r.ref_path_length, r.ape_rmse_percent);
+  if (r.ref_path_length > 0)
+    out += fmt::format("\nreference path length {:.6f} m, APE rmse {:.4f} % of it\n", r.ref_path_length,
+                       r.ape_rmse_percent);
+  else
+    out += "\nreference path length 0 m: APE as a percentage of it is undefined\n";
   if (r.has_rpe) {
     out += fmt::format("\nRPE w.r.t. translation part (m)\nfor delta = {} ({}) using consecutive pairs\n{}\n\n",
                        r.rpe_delta, r.rpe_delta_unit, alignTitle(r.align));
@@ -367,7 +372,7 @@ std::string reportToJson(const TrajectoryReport& r) {
   j["scale"] = r.scale;
   j["ape_translation_m"] = statsJson(r.ape);
   j["ref_path_length_m"] = r.ref_path_length;
-  j["ape_rmse_percent_of_path"] = r.ape_rmse_percent;
+  j["ape_rmse_percent_of_path"] = r.ref_path_length > 0 ? nlohmann::json(r.ape_rmse_percent) : nlohmann::json(nullptr);
   j["rpe_delta"] = r.rpe_delta;
   j["rpe_delta_unit"] = r.rpe_delta_unit;
   if (r.has_rpe) {

@@ -293,6 +293,33 @@ TEST(Options, LoadOptionsFileNamesTheFile) {
   }
 }
 
+// Two holes a user fell into (issue 22): a directory given as the file was ignored (all defaults,
+// exit 0), and a key given twice kept its first value silently.
+TEST(Options, RefusesADirectoryAndAKeyGivenTwice) {
+  test::TempDir dir;
+  SampleSystem o;
+  try {
+    loadOptionsFile(dir.path(), o);
+    FAIL() << "a directory accepted as a YAML file";
+  } catch (const Error& e) {
+    expectMentions(e.what(), {dir.path().string(), "is a directory"});
+  }
+  std::ofstream(dir / "twice.yaml") << "tracker:\n  fast_threshold: 12\n  fast_threshold: 30\n";
+  try {
+    loadOptionsFile(dir / "twice.yaml", o);
+    FAIL() << "a key given twice accepted";
+  } catch (const Error& e) {
+    expectMentions(e.what(), {(dir / "twice.yaml").string(), "line 3", "'fast_threshold' given twice", "line 2"});
+  }
+  // Top-level sections too, and the same key in two different sections is fine.
+  std::ofstream(dir / "sections.yaml") << "tracker:\n  fast_threshold: 12\ntracker:\n  fast_threshold: 13\n";
+  EXPECT_THROW(loadOptionsFile(dir / "sections.yaml", o), Error);
+  std::ofstream(dir / "ok.yaml") << "tracker:\n  fast_threshold: 12\n";
+  SampleSystem p;
+  loadOptionsFile(dir / "ok.yaml", p);
+  EXPECT_EQ(p.tracker.fast_threshold, 12);
+}
+
 TEST(Options, SectionOfScalarsLoadsAndValidates) {
   SampleCore c;
   loadOptions(YAML::Load("threads: 4\nseed: 7\nlog_level: warn\n"), c, "core.yaml");

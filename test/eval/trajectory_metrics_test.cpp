@@ -462,5 +462,54 @@ TEST(EvalCli, ErrorsAreReported) {
   EXPECT_FALSE(std::filesystem::exists(tmp / "o.json"));
 }
 
+// Holes found by a hostile user (issue 22): a zero-length path printed "0.0000 % of path", an
+// estimate in reverse time order was accepted, and --json onto the estimate overwrote it.
+TEST(EvalCli, ZeroLengthPathReverseOrderRepeatedStampsAndJsonOverAnInput) {
+  test::TempDir tmp;
+  std::ofstream(tmp / "still.txt") << "1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n3 0 0 0 0 0 0 1\n4 0 0 0 0 0 0 1\n";
+  std::ofstream(tmp / "est.txt") << "1 0 0 0.1 0 0 0 1\n2 0 0.1 0 0 0 0 1\n3 0.1 0 0 0 0 0 1\n4 0 0 0 0 0 0 1\n";
+  const auto still =
+      test::runCli("eval --ref '" + (tmp / "still.txt").string() + "' --est '" + (tmp / "est.txt").string() +
+                   "' --align none --json '" + (tmp / "o.json").string() + "'");
+  ASSERT_EQ(still.exit_code, 0) << still.output;
+  EXPECT_NE(still.output.find("percentage of it is undefined"), std::string::npos) << still.output;
+  EXPECT_EQ(still.output.find("0.0000 %"), std::string::npos) << still.output;
+  std::ifstream js(tmp / "o.json");
+  std::stringstream jss;
+  jss << js.rdbuf();
+  EXPECT_NE(jss.str().find("\"ape_rmse_percent_of_path\": null"), std::string::npos) << jss.str();
+
+  std::ofstream(tmp / "reverse.txt") << "4 0 0 0 0 0 0 1\n3 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n1 3 0 0 0 0 0 1\n";
+  const auto reverse =
+      test::runCli("eval --ref '" + (tmp / "est.txt").string() + "' --est '" + (tmp / "reverse.txt").string() + "'");
+  EXPECT_EQ(reverse.exit_code, 1);
+  EXPECT_NE(reverse.output.find((tmp / "reverse.txt").string() + ": pose 2 (timestamp 3.000000) is before pose 1"),
+            std::string::npos)
+      << reverse.output;
+
+  std::ofstream(tmp / "repeat.txt") << "1 0 0 0 0 0 0 1\n2 1 0 0 0 0 0 1\n2 1 0 0 0 0 0 1\n3 2 0 0 0 0 0 1\n"
+                                    << "4 3 1 0 0 0 0 1\n";
+  const auto repeat = test::runCli("eval --ref '" + (tmp / "repeat.txt").string() + "' --est '" +
+                                   (tmp / "repeat.txt").string() + "' --align none");
+  EXPECT_EQ(repeat.exit_code, 0) << repeat.output;
+  EXPECT_NE(repeat.output.find("1 pose(s) repeat the previous pose's timestamp (the first: pose 3)"), std::string::npos)
+      << repeat.output;
+
+  const std::string before = [&] {
+    std::ifstream in(tmp / "est.txt");
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  }();
+  const auto over = test::runCli("eval --ref '" + (tmp / "still.txt").string() + "' --est '" +
+                                 (tmp / "est.txt").string() + "' --json '" + (tmp / "est.txt").string() + "'");
+  EXPECT_EQ(over.exit_code, 1);
+  EXPECT_NE(over.output.find("is one of the inputs"), std::string::npos) << over.output;
+  std::ifstream after(tmp / "est.txt");
+  std::stringstream as;
+  as << after.rdbuf();
+  EXPECT_EQ(as.str(), before);
+}
+
 }  // namespace
 }  // namespace nerfslam::eval

@@ -126,7 +126,7 @@ struct TrajectoryReport {
   double rpe_delta = 1.0;
   std::string rpe_delta_unit;
   double ref_path_length = 0;   // of the associated reference poses (m)
-  double ape_rmse_percent = 0;  // ape.rmse / ref_path_length * 100 (0 when the path length is 0)
+  double ape_rmse_percent = 0;  // ape.rmse / ref_path_length * 100 (NaN when the path length is 0)
 };
 
 // Associates, aligns (the estimate, onto the reference), and computes APE and RPE. Throws an Error
