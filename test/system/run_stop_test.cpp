@@ -122,7 +122,7 @@ TEST(RunStop, SigintWhileReadingKeepsATrajectoryThatEvaluatesAndAMapThatLoads) {
   EXPECT_FALSE(rep.contains("in_progress")) << rep.dump(2);
   EXPECT_EQ(rep.at("interrupted_by_signal").get<int>(), SIGINT);
   const int at = rep.at("interrupted_at_frame").get<int>();
-  EXPECT_GT(at, 10);
+  EXPECT_GE(at, 10);
   EXPECT_LT(at, 51) << "the signal came after the whole sequence was read";
   EXPECT_TRUE(rep.at("skipped").empty()) << "one signal skips nothing but the unread frames: " << rep.dump(2);
   EXPECT_NE(run.output().find("interrupted at frame"), std::string::npos) << run.output();
