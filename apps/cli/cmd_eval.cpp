@@ -63,12 +63,12 @@ nerfslam::cli::Registrar reg(
           ->check(CLI::IsMember({"none", "se3", "sim3", "scale"}));
       sub.add_option("--max-dt", o.max_dt, "Largest timestamp difference (s) for associating poses")
           ->capture_default_str()
-          ->check(CLI::NonNegativeNumber);
+          ->check(nerfslam::cli::kNonNegative);
       sub.add_option("--t-offset", o.est_time_offset, "Time offset (s) added to the estimate's timestamps")
           ->capture_default_str();
       sub.add_option("--delta", o.rpe_delta, "RPE step between pose pairs")
           ->capture_default_str()
-          ->check(CLI::PositiveNumber);
+          ->check(nerfslam::cli::kPositive);
       sub.add_option("--delta-unit", o.rpe_delta_unit, "Unit of --delta: frames or m (travelled path)")
           ->capture_default_str()
           ->check(CLI::IsMember({"frames", "m"}));

@@ -50,7 +50,7 @@ Registrar reg("export", "Export a point cloud (PLY/PCD) or a mesh (PLY) from a N
                     ->check(CLI::IsMember({"ply", "pcd", "mesh"}));
                 sub.add_option("--out", a->out, "Output file")->required();
                 sub.add_option("--threshold", a->threshold, "Density threshold (1/NeRF-space length)")
-                    ->check(CLI::PositiveNumber);
+                    ->check(nerfslam::cli::kPositive);
                 sub.add_option("--subdivision", a->subdivision, "Grid cells per occupancy cell per axis")
                     ->check(CLI::Range(1, 8));
                 sub.add_option("--threads", a->threads, "Threads")->check(CLI::Range(1, 256));

@@ -14,6 +14,7 @@ struct RunArgs {
   std::string config;
   std::string out;
   std::size_t max_frames = 0;
+  double fps = 0;
   bool realtime = false;
   bool no_nerf = false;
   int demo_frames = 300;
@@ -36,6 +37,10 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--config", a->config, "Options YAML (see `nerfslam options`)");
       sub.add_option("--out", a->out, "Output directory")->required();
       sub.add_option("--max-frames", a->max_frames, "Use at most N frames (0: all)");
+      sub.add_option("--fps", a->fps,
+                     "Frame rate giving the timestamps of a dataset without them (an image folder without "
+                     "times.txt; 0: the dataset's own)")
+          ->check(CLI::Range(0.0, 10000.0));
       sub.add_flag("--realtime", a->realtime,
                    "Play frames at their timestamps, dropping what tracking can't keep up with");
       sub.add_flag("--no-nerf", a->no_nerf, "Sparse SLAM only: no NeRF mapping thread");
@@ -56,6 +61,7 @@ nerfslam::cli::Registrar reg(
         if (!a->config.empty()) o.config = a->config;
         o.out = a->out;
         o.max_frames = a->max_frames;
+        o.fps = a->fps;
         o.realtime = a->realtime;
         o.nerf = !a->no_nerf;
         o.demo_frames = a->demo_frames;

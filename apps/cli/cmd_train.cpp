@@ -211,16 +211,16 @@ Registrar reg(
       sub.add_option("--transforms", a->transforms, "transforms.json (or its folder)")->required();
       sub.add_option("--out", a->out, "Output directory")->required();
       auto* secs = sub.add_option("--seconds", a->seconds, "Training time budget (s, evaluation excluded)")
-                       ->check(CLI::PositiveNumber);
-      auto* steps = sub.add_option("--steps", a->steps, "Number of optimiser steps")->check(CLI::PositiveNumber);
+                       ->check(nerfslam::cli::kPositive);
+      auto* steps = sub.add_option("--steps", a->steps, "Number of optimiser steps")->check(nerfslam::cli::kPositive);
       secs->excludes(steps);
       sub.add_option("--test-every", a->test_every, "Hold out every Nth view (0: none)")->check(CLI::Range(0, 1000000));
       sub.add_option("--downscale", a->downscale, "Image downscale factor (>= 1)")->check(CLI::Range(1.0, 64.0));
       sub.add_option("--threads", a->threads, "Threads")->check(CLI::Range(1, 256));
-      sub.add_option("--seed", a->seed, "Random seed")->check(CLI::NonNegativeNumber);
+      sub.add_option("--seed", a->seed, "Random seed")->check(nerfslam::cli::kNonNegative);
       sub.add_option("--eval-interval", a->eval_interval,
                      "Seconds of training between PSNR-curve evaluations (0: none)")
-          ->check(CLI::NonNegativeNumber);
+          ->check(nerfslam::cli::kNonNegative);
       sub.add_option("--curve-views", a->curve_views, "Test views evaluated for the PSNR curve")
           ->check(CLI::Range(1, 1000));
       sub.add_option("--samples-per-step", a->samples_per_step, "Ray samples per optimiser step")

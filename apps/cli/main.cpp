@@ -1,6 +1,8 @@
 // `nerfslam <subcommand> ...`: the one command-line entry point. Subcommands live in cmd_*.cpp.
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <map>
 
 #include "command.h"
@@ -28,6 +30,19 @@ int main(int argc, char** argv) {
     CLI::App* sub = app.add_subcommand(s.name, s.help);
     runners[sub] = s.setup(*sub);
   }
+  // Every floating-point option refuses nan and inf: CLI11's range checks let NaN through (a
+  // `train --seconds nan` trained for ever).
+  const CLI::Validator finite(
+      [](std::string& s) -> std::string {
+        char* end = nullptr;
+        const double v = std::strtod(s.c_str(), &end);
+        if (end != s.c_str() && !std::isfinite(v)) return "must be a finite number (got " + s + ")";
+        return {};
+      },
+      "");
+  for (CLI::App* sub : app.get_subcommands({}))
+    for (CLI::Option* o : sub->get_options())
+      if (o->get_type_name().find("FLOAT") != std::string::npos) o->check(finite);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

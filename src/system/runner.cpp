@@ -69,6 +69,7 @@ std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   DatasetOptions dopt;
   dopt.camera_override = ro.camera;
   dopt.max_frames = ro.max_frames;
+  dopt.fps = ro.fps;
   return openDataset(spec, dopt);
 }
 

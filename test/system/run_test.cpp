@@ -192,6 +192,26 @@ TEST(RunSystem, SaturatedFramesReportFailure) {
   EXPECT_NE(rep.at("failure").get<std::string>().find("4 saturated"), std::string::npos) << rep.dump(2);
 }
 
+// A folder without times.txt was told to pass --fps, which `run` did not have (issue 22); and a
+// number given as nan passed every range check.
+TEST(RunSystem, FolderWithoutTimesRunsWithFpsAndNanIsRefused) {
+  test::TempDir dir;
+  const auto images = makeFolder(dir, 4, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(0)); });
+  std::filesystem::remove(images / "times.txt");
+  const std::string base =
+      "run --no-nerf --dataset folder:" + images.string() + " --camera " + (dir / "camera.yaml").string();
+  const auto without = test::runCli(base + " --out " + (dir / "a").string());
+  EXPECT_EQ(without.exit_code, 1);
+  EXPECT_NE(without.output.find("give the frame rate (--fps)"), std::string::npos) << without.output;
+  const auto with = test::runCli(base + " --fps 10 --out " + (dir / "b").string());
+  ASSERT_EQ(with.exit_code, 0) << with.output;
+  EXPECT_EQ(readReport(dir / "b").at("frames").get<int>(), 4);
+  const auto nan = test::runCli(base + " --fps nan --out " + (dir / "c").string());
+  EXPECT_NE(nan.exit_code, 0);
+  EXPECT_NE(nan.output.find("must be a finite number (got nan)"), std::string::npos) << nan.output;
+  EXPECT_FALSE(std::filesystem::exists(dir / "c"));
+}
+
 TEST(RunSystem, CalibrationOfAnotherSizeIsAClearError) {
   test::TempDir dir;
   const auto images = makeFolder(dir, 3, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(100)); });

@@ -26,6 +26,7 @@ struct RunOptions {
   std::optional<std::filesystem::path> config;
   std::filesystem::path out;
   std::size_t max_frames = 0;  // 0: all
+  double fps = 0;              // DatasetOptions::fps (--fps): timestamps of a folder without times.txt
   bool realtime = false;
   bool nerf = true;                     // false: SystemOptions::nerf.enabled = false (--no-nerf)
   bool progress = true;                 // progress line on stderr
