@@ -283,7 +283,7 @@ cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
 
   const double f = 0.5 * std::min(opts.width, opts.height) / std::tan(0.5 * opts.fov_deg * M_PI / 180.0);
   const Camera cam = Camera::pinhole(opts.width, opts.height, f, f, 0.5 * (opts.width - 1), 0.5 * (opts.height - 1));
-  RenderOptions ro;
+  RasterOptions ro;
   const double dist = (eye - target).norm();
   ro.near = std::max(1e-4, dist * 1e-3);
   ro.far = std::max(ro.near * 10, dist * 100);

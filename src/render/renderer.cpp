@@ -341,7 +341,7 @@ void Renderer::clearMeshes() {
 size_t Renderer::meshCount() const { return impl_->meshes.size(); }
 
 void Renderer::render(const Camera& camera, const SE3& T_world_cam, cv::Mat* bgr, cv::Mat* depth,
-                      const RenderOptions& opts) {
+                      const RasterOptions& opts) {
   const int w = camera.width, h = camera.height;
   if (w <= 0 || h <= 0 || w > 8192 || h > 8192) fail("render size {}x{} outside 1..8192", w, h);
   Impl& I = *impl_;

@@ -281,7 +281,7 @@ const std::vector<std::string>& sceneNames() {
 
 namespace {
 
-void validateSceneOptions(const SceneOptions& opts) {
+void validateSynthSceneOptions(const SynthSceneOptions& opts) {
   const auto& names = sceneNames();
   if (std::find(names.begin(), names.end(), opts.name) == names.end()) {
     std::string list;
@@ -298,7 +298,7 @@ void validateSceneOptions(const SceneOptions& opts) {
 // The photo order is shuffled by the seed.
 class TextureSource {
  public:
-  TextureSource(const SceneOptions& opts, Scene& sc) : opts_(opts), sc_(sc) {
+  TextureSource(const SynthSceneOptions& opts, Scene& sc) : opts_(opts), sc_(sc) {
     if (opts.textures != "procedural") {
       const fs::path dir = defaultDataDir(opts.data_dir);
       photos_ = findPhotos(dir);
@@ -338,7 +338,7 @@ class TextureSource {
   }
 
  private:
-  const SceneOptions& opts_;
+  const SynthSceneOptions& opts_;
   Scene& sc_;
   std::vector<fs::path> photos_;
   std::vector<size_t> order_;
@@ -463,8 +463,8 @@ void buildCorridor(Builder& b, TextureSource& texture, Scene& sc) {
 
 }  // namespace
 
-Scene makeScene(const SceneOptions& opts) {
-  validateSceneOptions(opts);
+Scene makeScene(const SynthSceneOptions& opts) {
+  validateSynthSceneOptions(opts);
   Scene sc;
   sc.name = opts.name;
   TextureSource texture(opts, sc);

@@ -124,7 +124,7 @@ struct SequenceRenderer::Impl {
   explicit Impl(const SynthOptions& o) : opts(o) {
     opts.validate();
     camera = synthCamera(opts);
-    SceneOptions so;
+    SynthSceneOptions so;
     so.name = opts.scene;
     so.seed = opts.seed;
     so.textures = opts.textures;

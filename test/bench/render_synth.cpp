@@ -33,7 +33,7 @@ struct Fixture {
   Renderer renderer;
   Camera cam = Camera::pinhole(640, 480, 525, 525, 319.5, 239.5);
   Fixture() {
-    SceneOptions so;
+    SynthSceneOptions so;
     so.name = "room";
     so.textures = "procedural";
     scene = makeScene(so);

@@ -140,7 +140,7 @@ TEST(Renderer, TextureFilterNames) {
 // A coloured marker around a known 3D point in the furnished room lands where Camera::project puts
 // it (centroid of its pixels, sub-pixel), seen from a generic pose.
 TEST(Renderer, MarkerLandsWhereCameraProjectPutsIt) {
-  SceneOptions so;
+  SynthSceneOptions so;
   so.name = "room";
   so.textures = "procedural";
   so.texture_size = 128;

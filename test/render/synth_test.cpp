@@ -255,7 +255,7 @@ TEST(Synth, NoiseHasTheRequestedSigma) {
 }
 
 TEST(Trajectories, LoopClosesRotationKeepsCentreHandheldStaysInside) {
-  SceneOptions so;
+  SynthSceneOptions so;
   so.textures = "procedural";
   so.texture_size = 32;
   for (const std::string& scene : sceneNames()) {
@@ -295,7 +295,7 @@ TEST(Trajectories, LoopClosesRotationKeepsCentreHandheldStaysInside) {
 }
 
 TEST(Synth, BadNamesListTheValidOnes) {
-  SceneOptions so;
+  SynthSceneOptions so;
   so.name = "kitchen";
   try {
     makeScene(so);

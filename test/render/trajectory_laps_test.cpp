@@ -13,7 +13,7 @@ namespace nerfslam::render {
 namespace {
 
 Scene proceduralScene(const std::string& name) {
-  SceneOptions so;
+  SynthSceneOptions so;
   so.name = name;
   so.textures = "procedural";
   so.texture_size = 32;

@@ -57,7 +57,7 @@ struct Mesh {
   std::vector<uint32_t> indices;  // empty: draw vertices in order
 };
 
-struct RenderOptions {
+struct RasterOptions {
   double near = 0.05;  // metres
   double far = 200.0;
   cv::Vec3f background{0.f, 0.f, 0.f};  // BGR in [0, 1]
@@ -102,7 +102,7 @@ class Renderer {
   // Renders the pinhole part of `camera` (distortion ignored) at camera.width x camera.height.
   // `bgr` and/or `depth` may be null to skip that readback.
   void render(const Camera& camera, const SE3& T_world_cam, cv::Mat* bgr, cv::Mat* depth,
-              const RenderOptions& opts = {});
+              const RasterOptions& opts = {});
   // Waits until every render() so far has been drawn. A readback waits by itself; a render() with
   // neither only queues the drawing in llvmpipe (what a benchmark of drawing alone must wait for).
   void finish();

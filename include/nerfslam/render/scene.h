@@ -27,7 +27,7 @@ namespace nerfslam::render {
 // (and so its existing output) distinct from another's.
 uint64_t mixSeed(uint64_t a, uint64_t b, uint64_t salt);
 
-struct SceneOptions {
+struct SynthSceneOptions {
   std::string name = "room";
   uint64_t seed = 1;
   // "auto": photos from the data folder when present, procedural otherwise; "procedural": never
@@ -60,7 +60,7 @@ struct Scene {
 
 const std::vector<std::string>& sceneNames();
 // Throws nerfslam::Error listing the valid names for an unknown scene.
-Scene makeScene(const SceneOptions& opts);
+Scene makeScene(const SynthSceneOptions& opts);
 
 // A deterministic high-frequency texture (value noise octaves, random shapes and text-like
 // strokes), BGR, size x size.

@@ -50,9 +50,9 @@ struct SynthOptions {
   int laps = 1;
   double fps = 30.0;
   uint64_t seed = 1;
-  std::string textures = "auto";             // SceneOptions::textures
+  std::string textures = "auto";             // SynthSceneOptions::textures
   std::string texture_filter = "trilinear";  // or "mip-nearest" (TextureFilter, renderer.h)
-  std::filesystem::path data_dir;            // SceneOptions::data_dir
+  std::filesystem::path data_dir;            // SynthSceneOptions::data_dir
   // Camera: when camera_yaml is set it is loaded (loadCameraYaml); otherwise width x height with
   // fx = fy = 525 and cx = 319.5, cy = 239.5 scaled from 640 x 480 (pixel-centre aware).
   std::filesystem::path camera_yaml;
