@@ -175,6 +175,7 @@ TEST(Background, TrainingOnOpaqueViewsRecoversAKnownBackground) {
   NerfModel model = NerfModel::create(sphereField(), sphereScene(), 1);
   TrainOptions to = sphereTraining(2);
   to.background_rows = 16;
+  to.learned_background = true;
   to.lr = 3e-2;
   Trainer trainer(model, train, to);
   ASSERT_TRUE(model.background) << "opaque views create the learned background";
@@ -219,7 +220,9 @@ TEST(Background, ViewsWithAlphaKeepTheRandomBackground) {
   std::vector<TrainingView> views;
   for (int i = 0; i < 4; ++i) views.push_back(syntheticView(i, 4, 16));  // RGBA, transparent around the sphere
   NerfModel model = NerfModel::create(sphereField(), sphereScene(), 1);
-  Trainer trainer(model, views, sphereTraining(1));
+  TrainOptions on = sphereTraining(1);
+  on.learned_background = true;
+  Trainer trainer(model, views, on);
   EXPECT_FALSE(model.background);
   // An RGBA image whose alpha is 255 everywhere is opaque.
   TrainingView opaque = skyView(0, 16);
