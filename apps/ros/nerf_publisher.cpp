@@ -92,6 +92,12 @@ class NerfPublisher::ModelCopy {
     model_.field_config = src.field_config;
     model_.scene = src.scene;
     model_.training_steps = src.training_steps;
+    if (!src.background)
+      model_.background.reset();
+    else if (model_.background && model_.background->numParameters() == src.background->numParameters())
+      *model_.background = *src.background;
+    else
+      model_.background = std::make_unique<nerf::Background>(*src.background);
     if (model_.grid)
       *model_.grid = *src.grid;
     else

@@ -91,9 +91,17 @@ struct ArrayRef {
 std::vector<ArrayRef> collectArrays(NerfModel& m, bool optimizer) {
   std::vector<ArrayRef> arrays;
   for (auto& a : m.field->parameters()) arrays.push_back({a.name, "f32", a.data, a.size});
+  if (m.background)
+    arrays.push_back({"background.logits", "f32", m.background->logits().data(), m.background->numParameters()});
   if (optimizer) {
     for (auto& a : m.field->optimizerMoments()) arrays.push_back({a.name, "f32", a.data, a.size});
     for (auto& a : m.field->optimizerCounters()) arrays.push_back({a.name, "u32", a.data, a.size});
+    if (m.background) {
+      Background& b = *m.background;
+      arrays.push_back({"adam.m.background", "f32", b.adamM().data(), b.adamM().size()});
+      arrays.push_back({"adam.v.background", "f32", b.adamV().data(), b.adamV().size()});
+      arrays.push_back({"adam.background_steps", "u32", b.adamSteps().data(), b.adamSteps().size()});
+    }
   }
   return arrays;
 }
@@ -141,6 +149,13 @@ void saveModel(NerfModel& model, const std::filesystem::path& path, const SaveOp
                {"resolution", OccupancyGrid::kRes},
                {"threshold", model.grid->threshold()}};
   h["training_steps"] = model.training_steps;
+  if (model.background) {
+    const Eigen::Matrix3f& f = model.background->frame();
+    std::vector<float> frame;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) frame.push_back(f(r, c));
+    h["background"] = {{"rows", model.background->rows()}, {"frame", frame}};
+  }
   nlohmann::json list = nlohmann::json::array();
   for (const auto& a : arrays) list.push_back({{"name", a.name}, {"type", a.type}, {"count", a.count}});
   list.push_back({{"name", "occupancy.values"}, {"type", "f32"}, {"count", model.grid->values().size()}});
@@ -150,7 +165,8 @@ void saveModel(NerfModel& model, const std::filesystem::path& path, const SaveOp
   writeFileAtomic(path, [&](std::ostream& os) {
     CrcWriter cw(os);
     cw.write(kMagic, sizeof(kMagic));
-    cw.pod(kModelFormatVersion);
+    // Without a background the file is a version-1 file (what earlier builds read and wrote).
+    cw.pod(model.background ? kModelFormatVersion : uint32_t(1));
     cw.pod(kByteOrderMark);
     cw.pod(uint64_t(header.size()));
     cw.write(header.data(), header.size());
@@ -180,8 +196,9 @@ NerfModel loadModel(const std::filesystem::path& path) {
   std::memcpy(&bom, buf.data() + 12, 4);
   std::memcpy(&hlen, buf.data() + 16, 8);
   if (bom != kByteOrderMark) fail("{}: byte order mark mismatch (file written on a big-endian machine?)", file);
-  if (version != kModelFormatVersion)
-    fail("{}: unsupported model format version {} (this build reads version {})", file, version, kModelFormatVersion);
+  if (version != 1 && version != kModelFormatVersion)
+    fail("{}: unsupported model format version {} (this build reads versions 1 to {})", file, version,
+         kModelFormatVersion);
   if (hlen > size - kFixed - 4) fail("{}: truncated model file (header of {} bytes, file {} bytes)", file, hlen, size);
   nlohmann::json h;
   try {
@@ -221,6 +238,15 @@ NerfModel loadModel(const std::filesystem::path& path) {
     m.field = std::make_unique<RadianceField>(m.field_config, 0);
     m.grid = std::make_unique<OccupancyGrid>(cascades);
     const float threshold = h.at("grid").at("threshold").get<float>();
+    if (version >= 2 && h.contains("background")) {
+      const auto& b = h.at("background");
+      const auto f = b.at("frame").get<std::vector<float>>();
+      if (f.size() != 9) throw fieldError(file, "header.background.frame", "must have 9 numbers");
+      Eigen::Matrix3f frame;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) frame(r, c) = f[size_t(3 * r + c)];
+      m.background = std::make_unique<Background>(b.at("rows").get<int>(), frame);
+    }
 
     std::vector<ArrayRef> targets = collectArrays(m, true);
     size_t pos = kFixed + hlen;

@@ -65,6 +65,7 @@ struct ViewSetup {
   Eigen::Vector3f z_axis;  // the camera's optical axis in the world
   float inv_scale;         // NeRF length -> world length
   float bg[3];
+  const Background* learned_bg;  // null: bg
   int W, H, bx_count;
 };
 
@@ -205,7 +206,9 @@ void writeTile(const ViewSetup& v, const TileWork& w, RenderResult& res) {
     const int x = s.pixel % v.W, y = s.pixel / v.W;
     const float op = 1.f - s.T;
     auto& c = res.rgb.at<cv::Vec3f>(y, x);
-    for (int k = 0; k < 3; ++k) c[k] = s.rgb[k] + s.T * v.bg[k];
+    float bg[3] = {v.bg[0], v.bg[1], v.bg[2]};
+    if (v.learned_bg) v.learned_bg->eval(w.rays[i].dir.data(), bg);
+    for (int k = 0; k < 3; ++k) c[k] = s.rgb[k] + s.T * bg[k];
     res.opacity.at<float>(y, x) = op;
     if (op > 1e-6f) {
       const float mean_t = s.dsum / op;
@@ -270,6 +273,7 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
                     T_world_cam.rotationMatrix().col(2).cast<float>(),
                     float(1.0 / model.scene.scale),
                     {float(opt.background[0]), float(opt.background[1]), float(opt.background[2])},
+                    opt.learned_background ? model.background.get() : nullptr,
                     W,
                     H,
                     (W + kBlockW - 1) / kBlockW};

@@ -132,10 +132,13 @@ struct Trainer::ThreadState {
   RadianceField::Gradients grads;
   std::vector<float> pos, fpos, dir, t, dt, sigma, rgb, d_sigma, d_rgb;
   std::vector<uint8_t> needed;  // samples before their ray's early termination (colour evaluated)
+  std::vector<float> bg_grad;   // dL/d(learned background logits) of the step
   struct RayInfo {
     int offset, count, view;
     int used = 0;  // samples before early termination (those with a colour)
     float target[3], bg[3];
+    bool learned_bg = false;  // bg is the model's learned background (bg_sample)
+    Background::Sample bg_sample;
   };
   std::vector<RayInfo> rays;              // of the current chunk (offsets into the chunk's buffers)
   int64_t num_rays = 0, num_samples = 0;  // of the step
@@ -150,7 +153,6 @@ Trainer::ImageData Trainer::toImageData(const cv::Mat& im) {
   ImageData d;
   d.width = im.cols;
   d.height = im.rows;
-  d.has_alpha = im.channels() == 4;
   cv::Mat u8;
   if (im.depth() == CV_32F)
     im.convertTo(u8, CV_8U, 255.0);
@@ -165,6 +167,9 @@ Trainer::ImageData Trainer::toImageData(const cv::Mat& im) {
   d.rgba.resize(size_t(d.width) * d.height * 4);
   for (int y = 0; y < d.height; ++y)
     std::memcpy(d.rgba.data() + size_t(y) * d.width * 4, u8.ptr(y), size_t(d.width) * 4);
+  // Alpha that is 255 everywhere (e.g. a view rebuilt by view()) is no alpha: an opaque image.
+  d.has_alpha = false;
+  for (size_t i = 3; i < d.rgba.size() && !d.has_alpha; i += 4) d.has_alpha = d.rgba[i] != 255;
   return d;
 }
 
@@ -204,6 +209,11 @@ size_t Trainer::addView(TrainingView view) {
   validateView(view, fmt::format("training view {}", views_.size()));
   images_.push_back(toImageData(view.image));
   view.image.release();  // keep only the compact copy
+  if (opt_.learned_background && !images_.back().has_alpha && !model_.background) {
+    model_.background =
+        std::make_unique<Background>(opt_.background_rows, view.T_world_cam.rotationMatrix().cast<float>());
+    snap_background_.clear();  // the next snapshot takes it
+  }
   views_.push_back(std::move(view));
   view_loss_.push_back(-1.0);
   if (!view_weights_.empty()) view_weights_.push_back(1.0);
@@ -289,6 +299,15 @@ void Trainer::snapshot() {
       }
   snap_params_.resize(params.size());
   for (size_t i = 0; i < params.size(); ++i) snap_params_[i].assign(params[i].data, params[i].data + params[i].size);
+  if (model_.background) {
+    for (float x : model_.background->logits())
+      if (!std::isfinite(x)) {
+        spdlog::warn("NeRF training: background not finite at step {}; keeping the snapshot of step {}", step_,
+                     snap_step_);
+        return;
+      }
+    snap_background_ = model_.background->logits();
+  }
   snap_grid_ = model_.grid->values();
   snap_threshold_ = model_.grid->threshold();
   snap_step_ = step_;
@@ -301,6 +320,13 @@ void Trainer::rollback() {
   for (auto& m : model_.field->optimizerMoments()) std::fill(m.data, m.data + m.size, 0.f);
   for (auto& c : model_.field->optimizerCounters()) std::fill(c.data, c.data + c.size, 0u);
   model_.field->parametersChanged();
+  if (model_.background) {
+    if (snap_background_.size() == model_.background->numParameters())
+      model_.background->logits() = snap_background_;
+    else  // created after the snapshot
+      std::fill(model_.background->logits().begin(), model_.background->logits().end(), 0.f);
+    model_.background->resetOptimizer();
+  }
   model_.grid->setValues(snap_grid_, snap_threshold_);
   ++rollbacks_;
 }
@@ -345,10 +371,13 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
       for (float& b : bg) b = pick.u01(ts.rng);
     const RayGenerator gen(views_[vi].camera, views_[vi].T_world_cam, model_.scene);
     const Ray ray = gen.ray(px + ju, py + jv);
+    const bool learned_bg = model_.background && !im.has_alpha;
     RayMarcher marcher(ray, *model_.grid, model_.scene, plan.march, jt);
     const int room = std::min(opt_.max_samples_per_ray, plan.budget - total - used);
     const int n = marcher.next(room, ts.pos.data() + 3 * used, ts.t.data() + used, ts.dt.data() + used);
-    if (n == 0) continue;
+    // A ray without samples (it misses the box, or every cell it crosses is empty) still teaches the
+    // learned background: its colour is the background's alone. Otherwise it teaches nothing.
+    if (n == 0 && !learned_bg) continue;
     if (!marcher.done() && n == room && room < opt_.max_samples_per_ray) {  // would be truncated
       *full = true;
       break;
@@ -357,6 +386,11 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
     ri.offset = used;
     ri.count = n;
     ri.view = int(vi);
+    if (learned_bg) {
+      ri.learned_bg = true;
+      ri.bg_sample = model_.background->lookup(ray.dir.data());
+      for (int c = 0; c < 3; ++c) bg[c] = ri.bg_sample.rgb[c];
+    }
     const uint8_t* px_rgba = im.rgba.data() + (size_t(py) * im.width + px) * 4;
     const float a = px_rgba[3] / 255.f;
     for (int c = 0; c < 3; ++c) {
@@ -406,6 +440,11 @@ void Trainer::compositeChunk(ThreadState& ts, float delta) {
     ++ts.view_rays[size_t(ri.view)];
     compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o, ri.bg, r,
                       d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
+    if (ri.learned_bg) {
+      float d_bg[3];
+      backgroundGradient(r.opacity, d_color, d_bg);
+      model_.background->backward(ri.bg_sample, d_bg, ts.bg_grad.data());
+    }
   }
 }
 
@@ -422,6 +461,8 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
   const size_t cap = size_t(plan.chunk + opt_.max_samples_per_ray);
   for (auto* v : {&ts.pos, &ts.dir, &ts.fpos, &ts.rgb, &ts.d_rgb}) v->resize(3 * cap);
   for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
+  if (model_.background && ts.bg_grad.size() != model_.background->numParameters())
+    ts.bg_grad.assign(model_.background->numParameters(), 0.f);
   RayPicker pick;
   pick.uniform = std::uniform_int_distribution<size_t>(0, views_.size() - 1);
   pick.use_weights = !view_weights_.empty();
@@ -491,6 +532,19 @@ bool Trainer::applyGradients(int64_t rays, StepStats* stats) {
   std::vector<RadianceField::Gradients*> grads;
   for (auto& ts : threads_) grads.push_back(&ts->grads);
   model_.field->step(grads, float(learningRate()), opt_.threads, scale);
+  if (model_.background) {
+    // Threads' gradients summed in thread order (deterministic), then one Adam step.
+    float* sum = threads_[0]->bg_grad.data();
+    const size_t n = model_.background->numParameters();
+    for (size_t k = 1; k < threads_.size(); ++k) {
+      float* g = threads_[k]->bg_grad.data();
+      for (size_t i = 0; i < n; ++i) {
+        sum[i] += g[i];
+        g[i] = 0.f;
+      }
+    }
+    model_.background->step(sum, float(learningRate()), model_.field->config().adam, scale);
+  }
   stats->times.optimizer = since(t0);
   // A NaN that the forward pass hides (e.g. behind a ReLU) still shows in the MLP weights after the
   // update; they are small (~10^4 floats), so they are checked every step. The hash grid is
@@ -505,6 +559,15 @@ bool Trainer::applyGradients(int64_t rays, StepStats* stats) {
         return false;
       }
   }
+  if (model_.background)
+    for (float x : model_.background->logits())
+      if (!std::isfinite(x)) {
+        spdlog::warn(
+            "NeRF training diverged at step {} (background not finite); rolling back to the snapshot of step {}", step_,
+            snap_step_);
+        rollback();
+        return false;
+      }
   return true;
 }
 
@@ -527,7 +590,10 @@ StepStats Trainer::step() {
   if (!std::isfinite(loss)) {
     spdlog::warn("NeRF training diverged at step {} (loss {}); rolling back to the snapshot of step {}", step_, loss,
                  snap_step_);
-    for (auto& ts : threads_) model_.field->clearGradients(ts->grads);
+    for (auto& ts : threads_) {
+      model_.field->clearGradients(ts->grads);
+      std::fill(ts->bg_grad.begin(), ts->bg_grad.end(), 0.f);
+    }
     rollback();
     stats.rolled_back = true;
     ++step_;

@@ -300,6 +300,8 @@ void NerfMapping::refit() {
   }
   auto fresh = std::make_unique<nerf::NerfModel>(
       nerf::NerfModel::create(model_->field->config(), scene, uint64_t(opt_.train.seed) + uint64_t(refits)));
+  // The learned background is by direction alone: it does not depend on the box and carries over.
+  if (model_->background) fresh->background = std::make_unique<nerf::Background>(*model_->background);
   // A field trained for fewer steps than the distillation would take knows less than those steps
   // would teach from the images: the new field starts from scratch instead.
   const int64_t old_steps = field_steps_before_ + trainer_->steps();

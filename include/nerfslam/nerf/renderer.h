@@ -20,7 +20,8 @@
 namespace nerfslam::nerf {
 
 struct RenderResult {
-  cv::Mat rgb;          // CV_32FC3, RGB order, [0,1], composited over the background
+  cv::Mat rgb;          // CV_32FC3, RGB order, [0,1], composited over the background (the model's learned one
+                        // when it has one and RenderOptions::learned_background is set)
   cv::Mat depth;        // CV_32FC1, z-depth (along the optical axis) in world units; 0 where opacity < min_opacity
   cv::Mat normals;      // CV_32FC3, unit normals in the world frame (weighted by compositing weights); 0 where
                         // opacity < min_opacity or normals were not requested

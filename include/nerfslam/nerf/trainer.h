@@ -4,14 +4,15 @@
 // One step: each of T threads draws rays (random view, random pixel, jittered inside the pixel) from
 // its own RNG stream (seeded from the seed and the thread index) until its share of
 // samples_per_step is filled, marches them through the occupancy grid, runs the field forward on all
-// its samples at once, composites each ray against a random background colour, and back-propagates
-// the Huber loss into its own Gradients; field.step() then merges the threads' gradients in thread
-// order and applies Adam. Results are deterministic for a seed and a thread count.
-// The occupancy grid is refreshed every grid_update_interval steps (see TrainOptions).
-// A non-finite loss, or non-finite MLP weights after an update (checked every step; the hash grid is
-// checked before each snapshot, so a snapshot is never broken), rolls the parameters and the grid
-// back to the last snapshot (taken every snapshot_interval steps) and restarts Adam's moments; the
-// step is reported as a rollback.
+// its samples at once, composites each ray against its background (views with alpha: a random colour;
+// views without alpha: the model's learned background, background.h, created by the first such view
+// when TrainOptions::learned_background is set) and back-propagates the Huber loss into its own
+// Gradients (and the background's); field.step() then merges the threads' gradients in thread order
+// and applies Adam (the background: its own Adam, same learning rate). Results are deterministic for a seed and a
+// thread count. The occupancy grid is refreshed every grid_update_interval steps (see TrainOptions). A non-finite loss,
+// or non-finite MLP weights after an update (checked every step; the hash grid is checked before each snapshot, so a
+// snapshot is never broken), rolls the parameters and the grid back to the last snapshot (taken every snapshot_interval
+// steps) and restarts Adam's moments; the step is reported as a rollback.
 #include <cstdint>
 #include <memory>
 #include <random>
@@ -27,7 +28,8 @@
 namespace nerfslam::nerf {
 
 // A posed image. image: RGB or RGBA channel order (not OpenCV's BGR), CV_8UC3/4 (0..255) or
-// CV_32FC3/4 (0..1). With alpha, the target colour is composited over the ray's background.
+// CV_32FC3/4 (0..1). With alpha (any pixel's below 255), the target colour is composited over the
+// ray's random background; without, the view is opaque (a real camera: the learned background).
 struct TrainingView {
   cv::Mat image;
   Camera camera;
@@ -130,6 +132,7 @@ class Trainer {
   // Divergence snapshot.
   std::vector<std::vector<float>> snap_params_;
   std::vector<float> snap_grid_;
+  std::vector<float> snap_background_;  // the learned background's logits
   float snap_threshold_ = 0;
   int64_t snap_step_ = -1;
 };
