@@ -101,7 +101,6 @@ Eval evaluate(const nerf::NerfModel& model, const std::vector<nerf::TrainingView
 }
 
 int runTrain(const TrainArgs& a) {
-  if (!std::isfinite(a.seconds)) fail("train: --seconds must be a finite number of seconds (got {})", a.seconds);
   if (a.seconds <= 0 && a.steps <= 0) fail("train: give --seconds or --steps");
   const fs::path out(a.out);
   ensureDirectory(out);

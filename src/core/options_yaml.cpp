@@ -55,10 +55,10 @@ std::string cutForMessage(const std::string& s) { return s.size() <= 60 ? s : s.
 // yaml-cpp keeps every pair of a map whose key is given twice, and lookups find the first: refused
 // instead, naming both lines. Iterative (a fuzzed file may nest deeply).
 void refuseDuplicateKeys(const YAML::Node& root, const std::filesystem::path& path) {
-  std::vector<YAML::Node> todo{root};
-  while (!todo.empty()) {
-    const YAML::Node n = todo.back();
-    todo.pop_back();
+  std::vector<YAML::Node> pending{root};
+  while (!pending.empty()) {
+    const YAML::Node n = pending.back();
+    pending.pop_back();
     if (n.IsMap()) {
       std::map<std::string, int> first_line;
       for (const auto& kv : n) {
@@ -69,10 +69,10 @@ void refuseDuplicateKeys(const YAML::Node& root, const std::filesystem::path& pa
             fail("{}: line {}: key '{}' given twice (first at line {}); give each option once", path.string(), line,
                  cutForMessage(kv.first.Scalar()), it->second);
         }
-        todo.push_back(kv.second);
+        pending.push_back(kv.second);
       }
     } else if (n.IsSequence()) {
-      for (const auto& e : n) todo.push_back(e);
+      for (const auto& e : n) pending.push_back(e);
     }
   }
 }
