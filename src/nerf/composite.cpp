@@ -68,6 +68,43 @@ void compositeBackward(int n, const float* sigma, const float* rgb, const float*
   }
 }
 
+namespace {
+
+float lineOfSightPenalty(float t, float t_surf, float inv_two_w2) {
+  const float d = t - t_surf;
+  return (d < 0.f ? 2.f : 1.f) * (1.f - std::exp(-d * d * inv_two_w2));
+}
+
+}  // namespace
+
+float lineOfSightLoss(int n, const float* sigma, const float* dt, const float* t, const CompositeResult& fwd,
+                      float t_surf, float width, float scale, float* d_sigma) {
+  (void)n;
+  const int used = fwd.used;
+  const float inv_two_w2 = 1.f / (2.f * width * width);
+  const float T_end = 1.f - fwd.opacity;
+  // Forward: L = sum_i w_i rho_i + T_end (rho of the transmittance left: 1).
+  float loss = T_end, T = 1.f;
+  for (int i = 0; i < used; ++i) {
+    const float alpha = 1.f - std::exp(-sigma[i] * dt[i]);
+    loss += T * alpha * lineOfSightPenalty(t[i], t_surf, inv_two_w2);
+    T *= 1.f - alpha;
+  }
+  // Backward, as compositeBackward with a one-channel "colour" rho and background 1:
+  // dL/dsigma_i = dt_i (T_{i+1} rho_i - sum_{k>i} w_k rho_k - T_end).
+  T = 1.f;
+  float prefix = 0.f;
+  for (int i = 0; i < used; ++i) {
+    const float alpha = 1.f - std::exp(-sigma[i] * dt[i]);
+    const float rho = lineOfSightPenalty(t[i], t_surf, inv_two_w2);
+    const float T_next = T * (1.f - alpha);
+    prefix += T * alpha * rho;
+    d_sigma[i] += scale * dt[i] * (T_next * rho - (loss - prefix));
+    T = T_next;
+  }
+  return loss;
+}
+
 float huberLoss3(const float pred[3], const float target[3], float delta, float d_pred[3]) {
   float loss = 0;
   for (int c = 0; c < 3; ++c) {

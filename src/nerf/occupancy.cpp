@@ -79,6 +79,7 @@ void OccupancyGrid::rebuildBits() {
   std::fill(bits_.begin(), bits_.end(), 0);
   for (size_t i = 0; i < values_.size(); ++i)
     if (values_[i] > threshold_) bits_[i / 64] |= uint64_t(1) << (i % 64);
+  for (uint32_t i : pinned_) bits_[i / 64] |= uint64_t(1) << (i % 64);
   // Max-pool finer cascades into the overlapping centre of the next coarser one.
   constexpr int h = kRes / 2;
   for (int m = 1; m < cascades_; ++m) {
@@ -194,7 +195,57 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
     if (i < size_t(kCells)) sum += values_[i];
   }
   threshold_ = std::min(prm.threshold_cap, float(sum / kCells));
+  carveSegments(prm.keep_empty);
+  pinCells(prm.keep_occupied);
   rebuildBits();
+}
+
+void OccupancyGrid::carveSegments(const std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>>& segments) {
+  auto carve = [this](const Eigen::Vector3f& p) {
+    const int mip = mipFromPos(p);
+    const float inv = invCascadeScale(mip);
+    int c[3];
+    for (int k = 0; k < 3; ++k) {
+      const float u = ((p[k] - 0.5f) * inv + 0.5f) * kRes;
+      if (!(u >= 0.f && u < float(kRes))) return;
+      c[k] = int(u);
+    }
+    values_[size_t(mip) * kCells + cellIndex(c[0], c[1], c[2])] = 0.f;
+  };
+  for (const auto& [a, b] : segments) {
+    if (!a.allFinite() || !b.allFinite()) continue;
+    // Steps of half a cell of the cascade at the nearer end (cascades only grow along the segment
+    // away from the centre, so no cell is skipped where cells are larger), both ends included.
+    const float step = 0.5f * cellSize(std::min(mipFromPos(a), mipFromPos(b)));
+    const int n = std::max(1, int(std::ceil((b - a).norm() / step)));
+    for (int k = 0; k <= n; ++k) carve(a + (float(k) / float(n)) * (b - a));
+  }
+}
+
+void OccupancyGrid::pinCells(const std::vector<Eigen::Vector3f>& points) {
+  pinned_.clear();
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    const int mip = mipFromPos(p);
+    const float inv = invCascadeScale(mip);
+    int c[3];
+    bool inside = true;
+    for (int a = 0; a < 3; ++a) {
+      const float u = ((p[a] - 0.5f) * inv + 0.5f) * kRes;
+      inside &= u >= 0.f && u < float(kRes);
+      c[a] = inside ? int(u) : 0;
+    }
+    if (!inside) continue;
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int x = c[0] + dx, y = c[1] + dy, z = c[2] + dz;
+          if (x < 0 || y < 0 || z < 0 || x >= kRes || y >= kRes || z >= kRes) continue;
+          pinned_.push_back(uint32_t(mip) * uint32_t(kCells) + cellIndex(x, y, z));
+        }
+  }
+  std::sort(pinned_.begin(), pinned_.end());
+  pinned_.erase(std::unique(pinned_.begin(), pinned_.end()), pinned_.end());
 }
 
 }  // namespace nerfslam::nerf

@@ -1,5 +1,6 @@
 #include "nerfslam/nerf/trainer.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -133,17 +134,20 @@ struct Trainer::ThreadState {
   std::vector<float> pos, fpos, dir, t, dt, sigma, rgb, d_sigma, d_rgb;
   std::vector<uint8_t> needed;  // samples before their ray's early termination (colour evaluated)
   std::vector<float> bg_grad;   // dL/d(learned background logits) of the step
+  std::vector<float> app_grad;  // dL/d(appearance) per view (Appearance::kParams each) of the step
   struct RayInfo {
     int offset, count, view;
     int used = 0;  // samples before early termination (those with a colour)
     float target[3], bg[3];
+    float t_surf = -1.f;  // > 0: the ray passes through a surface point at this NeRF-space distance
+    float surf_width = 0.f, surf_weight = 0.f;
     bool learned_bg = false;  // bg is the model's learned background (bg_sample)
     Background::Sample bg_sample;
   };
   std::vector<RayInfo> rays;              // of the current chunk (offsets into the chunk's buffers)
   int64_t num_rays = 0, num_samples = 0;  // of the step
-  double loss = 0;
-  int64_t composited = 0;
+  double loss = 0, depth_loss = 0;
+  int64_t composited = 0, depth_rays = 0;
   std::vector<double> view_loss;  // per view: summed loss of this step's rays
   std::vector<int> view_rays;
   StageTimes times;
@@ -174,7 +178,7 @@ Trainer::ImageData Trainer::toImageData(const cv::Mat& im) {
 }
 
 Trainer::Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options)
-    : model_(model), opt_(options) {
+    : model_(model), appearance_opt_(model.field->config().adam), opt_(options) {
   if (views.empty()) fail("NeRF training: no training views");
   if (opt_.threads < 1) fail("NeRF training: threads must be >= 1");
   views_.reserve(views.size());
@@ -209,6 +213,8 @@ size_t Trainer::addView(TrainingView view) {
   validateView(view, fmt::format("training view {}", views_.size()));
   images_.push_back(toImageData(view.image));
   view.image.release();  // keep only the compact copy
+  appearance_.emplace_back();
+  std::vector<SurfacePoint> points = std::move(view.points);
   if (opt_.learned_background && !images_.back().has_alpha && !model_.background) {
     model_.background =
         std::make_unique<Background>(opt_.background_rows, view.T_world_cam.rotationMatrix().cast<float>());
@@ -217,8 +223,27 @@ size_t Trainer::addView(TrainingView view) {
   views_.push_back(std::move(view));
   view_loss_.push_back(-1.0);
   if (!view_weights_.empty()) view_weights_.push_back(1.0);
+  setViewPoints(views_.size() - 1, std::move(points));
   return views_.size() - 1;
 }
+
+void Trainer::setViewPoints(size_t i, std::vector<SurfacePoint> points) {
+  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
+  points.erase(std::remove_if(points.begin(), points.end(),
+                              [](const SurfacePoint& p) {
+                                return !p.position.allFinite() || !(p.weight > 0.f && p.weight <= 1.f);
+                              }),
+               points.end());
+  views_[i].points = std::move(points);
+}
+
+void Trainer::setViewAppearance(size_t i, const Appearance& a) {
+  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
+  if (!a.finite()) throw fieldError(fmt::format("training view {}", i), "appearance", "is not finite");
+  if (learnsAppearance(i)) appearance_[i] = a;
+}
+
+bool Trainer::learnsAppearance(size_t view) const { return opt_.appearance && !images_[view].has_alpha; }
 
 TrainingView Trainer::view(size_t i) const {
   if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
@@ -285,7 +310,30 @@ void Trainer::updateGrid() {
   p.decay = float(opt_.grid_decay);
   p.threshold_cap = float(opt_.grid_threshold);
   p.seed = uint64_t(opt_.seed) * 0x9E3779B97F4A7C15ull + uint64_t(step_);
+  if (opt_.depth_weight > 0 && opt_.depth_ray_fraction > 0) p.keep_occupied = surfacePointsNerf();
+  if (opt_.carve_free_space) p.keep_empty = freeSpaceSegments();
   model_.grid->update([this](const float* xyz, int n, float* sigma) { densityBatch(xyz, n, sigma); }, p);
+}
+
+std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> Trainer::freeSpaceSegments() const {
+  std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> out;
+  const float reach = std::max(0.f, 1.f - 3.f * float(opt_.depth_width));
+  for (const auto& v : views_) {
+    const Eigen::Vector3f c = model_.scene.toNerf(v.T_world_cam.translation()).cast<float>();
+    for (const auto& p : v.points) {
+      if (p.weight < 0.5f) continue;  // only points the map is sure of carve
+      const Eigen::Vector3f q = model_.scene.toNerf(p.position.cast<double>()).cast<float>();
+      out.emplace_back(c, c + reach * (q - c));
+    }
+  }
+  return out;
+}
+
+std::vector<Eigen::Vector3f> Trainer::surfacePointsNerf() const {
+  std::vector<Eigen::Vector3f> out;
+  for (const auto& v : views_)
+    for (const auto& p : v.points) out.push_back(model_.scene.toNerf(p.position.cast<double>()).cast<float>());
+  return out;
 }
 
 void Trainer::snapshot() {
@@ -334,9 +382,11 @@ void Trainer::rollback() {
 // What every thread of a step shares.
 struct Trainer::StepPlan {
   MarchParams march;
-  int budget = 0;   // samples per thread
-  int chunk = 0;    // samples per chunk (at most budget)
-  float delta = 0;  // Huber delta
+  int budget = 0;      // samples per thread
+  int chunk = 0;       // samples per chunk (at most budget)
+  float delta = 0;     // Huber delta
+  bool depth = false;  // draw depth-supervised rays through views' surface points
+  float depth_fraction = 0, depth_weight = 0;
 };
 
 // A thread's ray draws over one step: which view, pixel, jitter and background.
@@ -363,9 +413,13 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
     ++attempts;
     const size_t vi = pick.view(ts.rng);
     const ImageData& im = images_[vi];
-    const int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
-    const int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
-    const float ju = pick.u01(ts.rng) - 0.5f, jv = pick.u01(ts.rng) - 0.5f, jt = pick.u01(ts.rng);
+    int px = std::uniform_int_distribution<int>(0, im.width - 1)(ts.rng);
+    int py = std::uniform_int_distribution<int>(0, im.height - 1)(ts.rng);
+    float ju = pick.u01(ts.rng) - 0.5f, jv = pick.u01(ts.rng) - 0.5f;
+    const float jt = pick.u01(ts.rng);
+    float t_surf = -1.f, surf_weight = 0.f;
+    if (plan.depth && !views_[vi].points.empty() && pick.u01(ts.rng) < plan.depth_fraction)
+      t_surf = throughSurfacePoint(views_[vi], ts.rng, &px, &py, &ju, &jv, &surf_weight);
     float bg[3] = {1.f, 1.f, 1.f};
     if (opt_.random_background)
       for (float& b : bg) b = pick.u01(ts.rng);
@@ -386,6 +440,11 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
     ri.offset = used;
     ri.count = n;
     ri.view = int(vi);
+    if (t_surf > 0.f) {
+      ri.t_surf = t_surf;
+      ri.surf_weight = surf_weight;
+      ri.surf_width = std::max(float(opt_.depth_width) * t_surf, 2.f * plan.march.dt(t_surf));
+    }
     if (learned_bg) {
       ri.learned_bg = true;
       ri.bg_sample = model_.background->lookup(ray.dir.data());
@@ -410,6 +469,25 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
   return used;
 }
 
+// A depth-supervised ray: a random surface point of the view that projects into its image sets the
+// pixel (and the sub-pixel offset, so the ray passes through the point); returns the point's
+// NeRF-space distance from the camera, or -1 (the ray stays as drawn) when it does not project.
+float Trainer::throughSurfacePoint(const TrainingView& v, std::mt19937_64& rng, int* px, int* py, float* ju, float* jv,
+                                   float* weight) const {
+  const SurfacePoint& sp = v.points[std::uniform_int_distribution<size_t>(0, v.points.size() - 1)(rng)];
+  const Eigen::Vector3d p_cam = v.T_world_cam.inverse() * sp.position.cast<double>();
+  Eigen::Vector2d uv;
+  if (!v.camera.projectInImage(p_cam, &uv)) return -1.f;
+  const int x = std::clamp(int(std::lround(uv.x())), 0, v.camera.width - 1);
+  const int y = std::clamp(int(std::lround(uv.y())), 0, v.camera.height - 1);
+  *px = x;
+  *py = y;
+  *ju = float(uv.x() - x);
+  *jv = float(uv.y() - y);
+  *weight = sp.weight;
+  return float(p_cam.norm() * model_.scene.scale);
+}
+
 // Density of every sample of the chunk, then colour only where the composite will read it: up to
 // each ray's early termination (the rest get zero gradients anyway).
 void Trainer::forwardChunk(ThreadState& ts, int used) {
@@ -425,7 +503,7 @@ void Trainer::forwardChunk(ThreadState& ts, int used) {
 
 // Composites each ray of the chunk, adds its Huber loss to the thread's sums and writes the loss
 // gradients of its samples (d_sigma, d_rgb).
-void Trainer::compositeChunk(ThreadState& ts, float delta) {
+void Trainer::compositeChunk(ThreadState& ts, float delta, float depth_weight) {
   for (const auto& ri : ts.rays) {
     const int o = ri.offset;
     const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o,
@@ -433,13 +511,27 @@ void Trainer::compositeChunk(ThreadState& ts, float delta) {
     if (r.used != ri.used)  // the same arithmetic on the same densities: a bug if ever different
       fail(fmt::format("NeRF training: composite used {} samples of a ray, the colour pass {}", r.used, ri.used));
     float d_color[3];
-    const double ray_loss = huberLoss3(r.rgb, ri.target, delta, d_color);
+    double ray_loss;
+    if (learnsAppearance(size_t(ri.view))) {
+      const Appearance& app = appearance_[size_t(ri.view)];
+      float out[3], d_out[3];
+      app.apply(r.rgb, out);
+      ray_loss = huberLoss3(out, ri.target, delta, d_out);
+      app.backward(r.rgb, d_out, ts.app_grad.data() + size_t(ri.view) * Appearance::kParams, d_color);
+    } else {
+      ray_loss = huberLoss3(r.rgb, ri.target, delta, d_color);
+    }
     ts.loss += ray_loss;
     ts.composited += r.used;
     ts.view_loss[size_t(ri.view)] += ray_loss;
     ++ts.view_rays[size_t(ri.view)];
     compositeBackward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o, ts.t.data() + o, ri.bg, r,
                       d_color, 0.f, ts.d_sigma.data() + o, ts.d_rgb.data() + 3 * o);
+    if (ri.t_surf > 0.f) {
+      ts.depth_loss += lineOfSightLoss(ri.count, ts.sigma.data() + o, ts.dt.data() + o, ts.t.data() + o, r, ri.t_surf,
+                                       ri.surf_width, depth_weight * ri.surf_weight, ts.d_sigma.data() + o);
+      ++ts.depth_rays;
+    }
     if (ri.learned_bg) {
       float d_bg[3];
       backgroundGradient(r.opacity, d_color, d_bg);
@@ -455,6 +547,8 @@ void Trainer::compositeChunk(ThreadState& ts, float delta) {
 void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
   ts.times = StageTimes{};
   ts.loss = 0;
+  ts.depth_loss = 0;
+  ts.depth_rays = 0;
   ts.composited = 0;
   ts.num_rays = 0;
   ts.num_samples = 0;
@@ -463,6 +557,7 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
   for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
   if (model_.background && ts.bg_grad.size() != model_.background->numParameters())
     ts.bg_grad.assign(model_.background->numParameters(), 0.f);
+  ts.app_grad.assign(views_.size() * Appearance::kParams, 0.f);
   RayPicker pick;
   pick.uniform = std::uniform_int_distribution<size_t>(0, views_.size() - 1);
   pick.use_weights = !view_weights_.empty();
@@ -484,7 +579,7 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
     ts.times.field_forward += since(t0);
 
     t0 = Clock::now();
-    compositeChunk(ts, plan.delta);
+    compositeChunk(ts, plan.delta, plan.depth_weight);
     ts.times.composite += since(t0);
 
     t0 = Clock::now();
@@ -497,9 +592,11 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
 // Sums the threads' results into stats (wall time per stage: the slowest thread's) and, when the
 // loss is finite, updates the per-view losses. Returns the summed loss.
 double Trainer::gatherThreads(StepStats* stats) {
-  double loss = 0;
+  double loss = 0, depth_loss = 0;
   for (const auto& ts : threads_) {
     loss += ts->loss;
+    depth_loss += ts->depth_loss;
+    stats->depth_rays += ts->depth_rays;
     stats->rays += ts->num_rays;
     stats->samples += ts->num_samples;
     stats->samples_composited += ts->composited;
@@ -521,7 +618,8 @@ double Trainer::gatherThreads(StepStats* stats) {
       view_loss_[v] = view_loss_[v] < 0 ? mean : 0.5 * view_loss_[v] + 0.5 * mean;
     }
   stats->loss = stats->rays > 0 ? loss / double(stats->rays) : 0.0;
-  return loss;
+  stats->depth_loss = stats->depth_rays > 0 ? depth_loss / double(stats->depth_rays) : 0.0;
+  return loss + depth_loss;
 }
 
 // Applies the threads' gradients with Adam (the mean-per-ray loss: scaled by 1/rays). False when
@@ -545,6 +643,7 @@ bool Trainer::applyGradients(int64_t rays, StepStats* stats) {
     }
     model_.background->step(sum, float(learningRate()), model_.field->config().adam, scale);
   }
+  stepAppearance();
   stats->times.optimizer = since(t0);
   // A NaN that the forward pass hides (e.g. behind a ReLU) still shows in the MLP weights after the
   // update; they are small (~10^4 floats), so they are checked every step. The hash grid is
@@ -571,6 +670,47 @@ bool Trainer::applyGradients(int64_t rays, StepStats* stats) {
   return true;
 }
 
+// One Adam step of each learnt appearance from the mean gradient of its view's rays in this step
+// (threads summed in thread order), then the mean over the views that learn one is taken out (the
+// gauge: the field's colours are those of the views' mean appearance). A transform that comes out
+// non-finite is reset to identity.
+void Trainer::stepAppearance() {
+  constexpr size_t K = Appearance::kParams;
+  double mean[K] = {};
+  int learning = 0;
+  for (size_t v = 0; v < views_.size(); ++v) {
+    int n = 0;
+    for (const auto& ts : threads_) n += ts->view_rays[v];
+    if (n == 0 || !learnsAppearance(v)) continue;
+    float g[K] = {};
+    for (const auto& ts : threads_)
+      for (size_t k = 0; k < K; ++k) g[k] += ts->app_grad[v * K + k];
+    for (float& x : g) x /= float(n);
+    appearance_opt_.step(v, appearance_[v], g, float(opt_.appearance_lr), float(opt_.appearance_reg));
+    if (!appearance_[v].finite()) {
+      spdlog::warn("NeRF training: the appearance of view {} diverged at step {}; reset to identity", v, step_);
+      appearance_[v] = Appearance{};
+      appearance_opt_.reset(v);
+    }
+  }
+  for (size_t v = 0; v < views_.size(); ++v) {
+    if (!learnsAppearance(v)) continue;
+    ++learning;
+    for (size_t c = 0; c < 3; ++c) {
+      mean[c] += appearance_[v].log_gain[c];
+      mean[3 + c] += appearance_[v].bias[c];
+    }
+  }
+  if (learning == 0) return;
+  for (size_t v = 0; v < views_.size(); ++v) {
+    if (!learnsAppearance(v)) continue;
+    for (size_t c = 0; c < 3; ++c) {
+      appearance_[v].log_gain[c] -= float(mean[c] / learning);
+      appearance_[v].bias[c] -= float(mean[3 + c] / learning);
+    }
+  }
+}
+
 StepStats Trainer::step() {
   StepStats stats;
   auto t_grid = Clock::now();
@@ -584,6 +724,9 @@ StepStats Trainer::step() {
   plan.budget = std::max(1, opt_.samples_per_step / T);
   plan.chunk = std::max(1, std::min(plan.budget, opt_.samples_per_chunk));
   plan.delta = float(opt_.huber_delta);
+  plan.depth = opt_.depth_weight > 0 && opt_.depth_ray_fraction > 0;
+  plan.depth_fraction = float(opt_.depth_ray_fraction);
+  plan.depth_weight = float(opt_.depth_weight);
   parallelRun(T, [&](int ti) { trainThread(*threads_[size_t(ti)], plan); });
 
   const double loss = gatherThreads(&stats);
@@ -607,12 +750,7 @@ StepStats Trainer::step() {
   ++step_;
   model_.training_steps = uint64_t(step_);
   if (step_ % opt_.snapshot_interval == 0) snapshot();
-  total_.march += stats.times.march;
-  total_.field_forward += stats.times.field_forward;
-  total_.composite += stats.times.composite;
-  total_.field_backward += stats.times.field_backward;
-  total_.optimizer += stats.times.optimizer;
-  total_.grid_update += stats.times.grid_update;
+  total_ += stats.times;
   return stats;
 }
 

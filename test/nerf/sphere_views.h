@@ -23,11 +23,12 @@ inline SE3 lookAt(const Eigen::Vector3d& eye) {
   return SE3(R, eye);
 }
 
-// View i of n (azimuths evenly spread, elevations varied), size x size pixels.
-inline TrainingView syntheticView(int i, int n, int size) {
+// View i of n (azimuths evenly spread, elevations varied), size x size pixels, from `distance`
+// (below about 1.9 the sphere fills the image).
+inline TrainingView syntheticView(int i, int n, int size, double distance = 3.0) {
   const double az = 2 * M_PI * i / n, el = 0.3 + 0.5 * std::sin(3.0 * i);
   const Eigen::Vector3d eye =
-      3.0 * Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+      distance * Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
   TrainingView v;
   v.camera = Camera::pinhole(size, size, 1.1 * size, 1.1 * size, (size - 1) / 2.0, (size - 1) / 2.0);
   v.T_world_cam = lookAt(eye);

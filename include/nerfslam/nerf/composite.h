@@ -52,6 +52,19 @@ void compositeBackward(int n, const float* sigma, const float* rgb, const float*
                        const float background[3], const CompositeResult& fwd, const float d_color[3], float d_depth_sum,
                        float* d_sigma, float* d_rgb);
 
+// Sparse depth supervision of one ray whose surface is known at t_surf (a map point the view
+// observes), as depth-supervised NeRF and urban radiance fields' line-of-sight prior do: the
+// expected penalty of where the ray terminates under the compositing weights,
+//   L = sum_i w_i rho(t_i) + T_end,
+//   rho(t) = k (1 - exp(-(t - t_surf)^2 / (2 width^2))),  k = 2 in front of the surface, 1 behind it,
+// so weight on the surface costs nothing, density in front of it (hiding it: free space that is not
+// free) costs most, and a ray that does not stop (T_end) or stops behind the surface costs 1.
+// Bounded, so a wrong map point costs a bounded loss. Adds scale * dL/dsigma_i to d_sigma[0..fwd.used)
+// (samples past fwd.used have no weight) and returns L. `fwd` is compositeForward's result for the
+// same densities.
+float lineOfSightLoss(int n, const float* sigma, const float* dt, const float* t, const CompositeResult& fwd,
+                      float t_surf, float width, float scale, float* d_sigma);
+
 // Huber loss (delta) of prediction minus target summed over 3 channels; writes dL/dpred.
 float huberLoss3(const float pred[3], const float target[3], float delta, float d_pred[3]);
 

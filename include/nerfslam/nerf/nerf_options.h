@@ -70,6 +70,22 @@ struct TrainOptions {
   bool learned_background = false;
   // Rows of the learned background's lat-long map (columns: twice as many); 64: 2.8 degrees a texel.
   int background_rows = 64;
+  // Sparse depth (views with surface points, e.g. the SLAM map's points a keyframe observes): this
+  // share of a view's rays is drawn through its points' projections and adds the line-of-sight loss
+  // (composite.h: lineOfSightLoss) with weight depth_weight x the point's weight; the surface is
+  // spread over depth_width x its distance (at least two march steps). The occupancy cells around the
+  // points stay occupied, so the loss always has samples at the surface to act on.
+  double depth_ray_fraction = 0.25;
+  double depth_weight = 0.1;
+  double depth_width = 0.03;
+  // The occupancy cells on a view's lines of sight to its surface points, short of the points by
+  // three surface widths, are kept empty (space carving): a sparse map says what is free space.
+  bool carve_free_space = true;
+  // Per-view appearance (appearance.h) for views without alpha: an affine colour transform per view,
+  // learned with its own Adam (appearance_lr) and L2 towards identity (appearance_reg).
+  bool appearance = true;
+  double appearance_lr = 2e-3;
+  double appearance_reg = 1e-2;
   // Divergence guard: parameters are snapshotted every snapshot_interval steps; a non-finite loss
   // restores the snapshot (and restarts Adam's moments).
   int snapshot_interval = 100;
@@ -104,6 +120,19 @@ struct TrainOptions {
       "Views without alpha learn the background by ray direction (a lat-long map) instead");
     v("background_rows", background_rows, "Rows of the learned background map (columns: twice as many)",
       check::range(2, 1024));
+    v("depth_ray_fraction", depth_ray_fraction,
+      "Share of the rays of views with surface points drawn through those points (sparse depth supervision)",
+      check::range(0.0, 1.0));
+    v("depth_weight", depth_weight, "Weight of the line-of-sight depth loss per ray (0: off)",
+      check::range(0.0, 100.0));
+    v("depth_width", depth_width, "Width of a supervised surface, as a fraction of its distance",
+      check::range(1e-4, 1.0));
+    v("carve_free_space", carve_free_space,
+      "Keep the occupancy cells between a view and its surface points empty (free space from the sparse map)");
+    v("appearance", appearance, "Learn a per-view colour transform (exposure, white balance) for views without alpha");
+    v("appearance_lr", appearance_lr, "Adam learning rate of the per-view appearance", check::range(0.0, 1.0));
+    v("appearance_reg", appearance_reg, "L2 weight pulling each view's appearance towards identity",
+      check::range(0.0, 100.0));
     v("snapshot_interval", snapshot_interval, "Steps between divergence snapshots", check::positive<int>());
     v("threads", threads, "Training threads", check::range(1, 256));
     v("seed", seed, "Random seed", check::nonNegative<int64_t>());

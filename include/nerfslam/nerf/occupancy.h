@@ -42,6 +42,14 @@ class OccupancyGrid {
     float decay = 0.95f;
     float threshold_cap = 0.01f;  // threshold = min(threshold_cap, mean value of cascade 0)
     uint64_t seed = 0;            // the sample positions are a pure function of this seed
+    // NeRF-space points of known surfaces (e.g. sparse map points): their cells and the 26 around
+    // them stay occupied, whatever their density, until the next update (a field that has not yet
+    // put density there still gets samples at the surface for a depth loss to act on).
+    std::vector<Eigen::Vector3f> keep_occupied;
+    // NeRF-space segments known to be free space (a camera's line of sight to a surface it sees, short
+    // of the surface): the cells they cross (at the finest cascade holding each point) are emptied
+    // after the update, so neither training nor rendering samples there. keep_occupied wins.
+    std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> keep_empty;
   };
   void update(const DensityFn& density, const UpdateParams& params);
 
@@ -97,10 +105,13 @@ class OccupancyGrid {
  private:
   void rebuildBits();
   void rebuildCoarse();
+  void pinCells(const std::vector<Eigen::Vector3f>& points);
+  void carveSegments(const std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>>& segments);
 
   int cascades_;
   float threshold_ = 0;
   std::vector<float> values_;
+  std::vector<uint32_t> pinned_;     // global cell indices kept occupied (UpdateParams::keep_occupied)
   std::vector<uint64_t> bits_;       // cascades * kCells bits
   std::vector<uint64_t> coarse_[2];  // block levels 1 and 2 (see occupiedBlock)
 };

@@ -22,10 +22,18 @@
 
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
+#include "nerfslam/nerf/appearance.h"
 #include "nerfslam/nerf/model_io.h"
 #include "nerfslam/nerf/nerf_options.h"
 
 namespace nerfslam::nerf {
+
+// A point of the scene that a view sees (e.g. a sparse map point its keyframe observes): world
+// position and a confidence weight in (0, 1]. It supervises the depth of the view's ray through it.
+struct SurfacePoint {
+  Eigen::Vector3f position = Eigen::Vector3f::Zero();
+  float weight = 1.f;
+};
 
 // A posed image. image: RGB or RGBA channel order (not OpenCV's BGR), CV_8UC3/4 (0..255) or
 // CV_32FC3/4 (0..1). With alpha (any pixel's below 255), the target colour is composited over the
@@ -34,6 +42,7 @@ struct TrainingView {
   cv::Mat image;
   Camera camera;
   SE3 T_world_cam;
+  std::vector<SurfacePoint> points;  // optional sparse depth (TrainOptions::depth_*)
 };
 
 // Validates a view (image type, size vs camera, finite pose, positive focal length) and throws an
@@ -51,10 +60,21 @@ cv::Mat compositeOver(const TrainingView& view, const float background[3]);
 
 struct StageTimes {
   double march = 0, field_forward = 0, composite = 0, field_backward = 0, optimizer = 0, grid_update = 0;
+  StageTimes& operator+=(const StageTimes& o) {
+    march += o.march;
+    field_forward += o.field_forward;
+    composite += o.composite;
+    field_backward += o.field_backward;
+    optimizer += o.optimizer;
+    grid_update += o.grid_update;
+    return *this;
+  }
 };
 
 struct StepStats {
-  double loss = 0;  // mean Huber loss per ray (sum over channels)
+  double loss = 0;         // mean Huber loss per ray (sum over channels)
+  double depth_loss = 0;   // mean line-of-sight loss of the depth-supervised rays
+  int64_t depth_rays = 0;  // rays drawn through surface points
   int64_t rays = 0;
   int64_t samples = 0;             // marched samples (the field's density for each)
   int64_t samples_composited = 0;  // of those, before their ray's transmittance fell below 1e-4 (colour,
@@ -92,6 +112,14 @@ class Trainer {
   TrainingView view(size_t i) const;
   // Throws nerfslam::Error for an unknown index or a non-finite pose.
   void setViewPose(size_t i, const SE3& T_world_cam);
+  // Replaces view i's surface points (they move with bundle adjustment). Points that are not finite
+  // or have a weight outside (0, 1] are dropped.
+  void setViewPoints(size_t i, std::vector<SurfacePoint> points);
+  size_t numViewPoints(size_t i) const { return views_.at(i).points.size(); }
+  // The learned per-view appearance (identity for views with alpha and when TrainOptions::appearance
+  // is off); setViewAppearance carries one over (e.g. across a box re-fit).
+  const Appearance& viewAppearance(size_t i) const { return appearance_.at(i); }
+  void setViewAppearance(size_t i, const Appearance& a);
   // Relative probability of drawing each view's rays (one finite weight >= 0 per view, not all
   // zero); empty: uniform. Views added later get weight 1 until the next call.
   void setViewWeights(std::vector<double> weights);
@@ -109,13 +137,19 @@ class Trainer {
   struct StepPlan;
   struct RayPicker;
   void rollback();
+  bool learnsAppearance(size_t view) const;
+  void stepAppearance();
+  std::vector<Eigen::Vector3f> surfacePointsNerf() const;
+  std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> freeSpaceSegments() const;
   static ImageData toImageData(const cv::Mat& image);
   void densityBatch(const float* xyz, int n, float* sigma);
   // The stages of step() (trainer.cpp).
   void trainThread(ThreadState& ts, const StepPlan& plan);
   int marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, int total, int* attempts, bool* full);
   void forwardChunk(ThreadState& ts, int used);
-  void compositeChunk(ThreadState& ts, float delta);
+  void compositeChunk(ThreadState& ts, float delta, float depth_weight);
+  float throughSurfacePoint(const TrainingView& v, std::mt19937_64& rng, int* px, int* py, float* ju, float* jv,
+                            float* weight) const;
   double gatherThreads(StepStats* stats);
   bool applyGradients(int64_t rays, StepStats* stats);
 
@@ -124,6 +158,8 @@ class Trainer {
   std::vector<ImageData> images_;
   std::vector<double> view_weights_;  // empty: uniform
   std::vector<double> view_loss_;
+  std::vector<Appearance> appearance_;
+  AppearanceOptimizer appearance_opt_;
   TrainOptions opt_;
   std::vector<std::unique_ptr<ThreadState>> threads_;
   int64_t step_ = 0;
