@@ -74,8 +74,9 @@ struct Eval {
   double psnr = 0, ssim = 0;
 };
 
-Eval evaluate(const nerf::NerfModel& model, const std::vector<nerf::TrainingView>& views, size_t count, int threads,
-              bool with_ssim, std::vector<cv::Mat>* renders) {
+// Test views are rendered with the appearance of their nearest training view (appearance.h).
+Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const std::vector<nerf::TrainingView>& views,
+              size_t count, int threads, bool with_ssim, std::vector<cv::Mat>* renders) {
   Eval e;
   count = std::min(count, views.size());
   if (count == 0) return e;
@@ -83,10 +84,13 @@ Eval evaluate(const nerf::NerfModel& model, const std::vector<nerf::TrainingView
   nerf::RenderOptions ro;
   ro.threads = threads;
   ro.normals = false;
+  std::vector<SE3> train_poses;
+  for (size_t i = 0; i < trainer.numViews(); ++i) train_poses.push_back(trainer.viewPose(i));
   for (size_t i = 0; i < count; ++i) {
     const auto r = nerf::renderView(model, views[i].camera, views[i].T_world_cam, ro);
+    const nerf::Appearance& app = trainer.viewAppearance(nerf::nearestView(train_poses, views[i].T_world_cam));
     cv::Mat gt = nerf::compositeOver(views[i], white);
-    cv::Mat pred = cv::min(cv::max(r.rgb, 0.0), 1.0);
+    cv::Mat pred = cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0);
     e.psnr += eval::psnr(pred, gt, 1.0);
     if (with_ssim) e.ssim += eval::ssim(pred, gt, 1.0);
     if (renders) {
@@ -142,7 +146,7 @@ int runTrain(const TrainArgs& a) {
           trainer.steps(), st.loss, st.rays, st.samples, st.times.march, st.times.field_forward, st.times.composite,
           st.times.field_backward, st.times.optimizer, st.times.grid_update, 100.0 * model.grid->occupiedFraction());
     if (a.eval_interval > 0 && train_seconds >= next_eval && !split.test.empty()) {
-      const Eval e = evaluate(model, split.test, size_t(a.curve_views), a.threads, false, nullptr);
+      const Eval e = evaluate(model, trainer, split.test, size_t(a.curve_views), a.threads, false, nullptr);
       curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), e.psnr);
       spdlog::info("train: {:.1f} s, step {}, loss {:.5f}, test PSNR (first {} views) {:.2f} dB, grid {:.1f}% occupied",
                    train_seconds, trainer.steps(), st.loss, a.curve_views, e.psnr,
@@ -157,7 +161,7 @@ int runTrain(const TrainArgs& a) {
   std::vector<cv::Mat> renders;
   Eval final_eval;
   const bool evaluated = stopRequests() < 2;
-  if (evaluated) final_eval = evaluate(model, split.test, split.test.size(), a.threads, true, &renders);
+  if (evaluated) final_eval = evaluate(model, trainer, split.test, split.test.size(), a.threads, true, &renders);
   if (evaluated && !split.test.empty())
     curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), final_eval.psnr);
 

@@ -465,6 +465,19 @@ std::vector<MapPoint> Map::points(const std::vector<PointId>& ids) const {
   return out;
 }
 
+std::vector<Map::PointSummary> Map::pointSummaries(const std::vector<PointId>& ids) const {
+  auto lock = lockShared(mutex_);
+  std::vector<PointSummary> out(ids.size());
+  for (size_t i = 0; i < ids.size(); ++i) {
+    auto it = points_.find(ids[i]);
+    if (it == points_.end()) continue;
+    out[i].position = it->second.position;
+    out[i].observations = int(it->second.observations.size());
+    out[i].found_ratio = it->second.foundRatio();
+  }
+  return out;
+}
+
 std::optional<KeyframeId> Map::lastKeyframeId() const {
   auto lock = lockShared(mutex_);
   if (keyframes_.empty()) return std::nullopt;

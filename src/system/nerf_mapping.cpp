@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/statistics.h"
 #include "nerfslam/core/thread.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
@@ -105,7 +106,23 @@ void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
     cv::cvtColor(ev.frame->pyramid[0], bgr, cv::COLOR_GRAY2BGR);
   }
   const SE3 pose = map_.resolvePose(ev.id).value_or(ev.T_world_cam);
-  if (model_ && !isNewView(pose)) {
+  View view;
+  view.keyframe = ev.id;
+  view.frame = ev.frame->id;
+  view.pose = pose;
+  keyframe_camera_ = ev.frame->camera;
+  if (const auto kf = map_.keyframe(ev.id)) {
+    for (size_t k = 0; k < kf->points.size() && k < ev.frame->keypoints.size(); ++k)
+      if (kf->points[k] != kNoPoint) {
+        view.point_ids.push_back(kf->points[k]);
+        view.keypoints.emplace_back(ev.frame->keypoints[k].pt.x, ev.frame->keypoints[k].pt.y);
+      }
+  }
+  std::vector<nerf::SurfacePoint> points = std::move(surfacePoints({view}).front());
+  std::vector<double> depths;
+  for (const auto& p : points) depths.push_back((p.position.cast<double>() - pose.translation()).norm());
+  const double median_depth = depths.empty() ? 0.0 : median(depths);
+  if (model_ && !isNewView(pose, median_depth)) {
     std::lock_guard<std::mutex> s(stats_mutex_);
     ++stats_.keyframes_skipped;
     return;
@@ -113,9 +130,8 @@ void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
   PendingView pending;
   pending.training =
       nerf::makeTrainingView(bgr, ev.frame->camera, pose, opt_.downscale, fmt::format("keyframe {}", ev.id));
-  pending.view.keyframe = ev.id;
-  pending.view.frame = ev.frame->id;
-  pending.view.pose = pending.training.T_world_cam;
+  pending.training.points = std::move(points);
+  pending.view = std::move(view);
   train_camera_ = pending.training.camera;
   pending_.push_back(std::move(pending));
   if (!model_) createModel();
@@ -135,9 +151,10 @@ void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
   stats_.views = int(views_.size());
 }
 
-bool NerfMapping::isNewView(const SE3& pose) const {
-  // World distance threshold: a fraction of the fitted box (the unit cube is 1 / scale wide).
-  const double min_dist = opt_.min_view_distance / model_->scene.scale;
+bool NerfMapping::isNewView(const SE3& pose, double median_depth) const {
+  // World distance threshold: a fraction of the scene depth the view sees (parallax), or of the
+  // fitted box (the unit cube is 1 / scale wide) when it sees no map point.
+  const double min_dist = opt_.min_view_distance * (median_depth > 0 ? median_depth : 1.0 / model_->scene.scale);
   const double min_angle = opt_.min_view_angle_deg * M_PI / 180.0;
   for (const View& view : views_) {
     const SE3& T = view.pose;
@@ -146,6 +163,30 @@ bool NerfMapping::isNewView(const SE3& pose) const {
     if (d < min_dist && a < min_angle) return false;
   }
   return true;
+}
+
+std::vector<std::vector<nerf::SurfacePoint>> NerfMapping::surfacePoints(const std::vector<View>& views) const {
+  std::vector<PointId> ids;
+  for (const View& v : views) ids.insert(ids.end(), v.point_ids.begin(), v.point_ids.end());
+  const std::vector<Map::PointSummary> sums = map_.pointSummaries(ids);
+  std::vector<std::vector<nerf::SurfacePoint>> out(views.size());
+  size_t k = 0;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const SE3 T_cam_world = views[i].pose.inverse();
+    for (size_t j = 0; j < views[i].point_ids.size(); ++j, ++k) {
+      const Map::PointSummary& p = sums[k];
+      if (p.observations == 0) continue;  // culled: it stops supervising
+      const Eigen::Vector3d p_cam = T_cam_world * p.position;
+      if (!(p_cam.z() > 0) || !p_cam.allFinite()) continue;
+      // Trust: seen by more keyframes, matched when it should be, and where its keypoint is.
+      const double err = (keyframe_camera_.project(p_cam) - views[i].keypoints[j].cast<double>()).norm();
+      const double w =
+          std::min(1.0, p.observations / 4.0) * std::min(1.0, 2.0 * p.found_ratio) / (1.0 + (err / 2.0) * (err / 2.0));
+      if (!(w >= 0.05)) continue;
+      out[i].push_back({p.position.cast<float>(), float(std::min(w, 1.0))});
+    }
+  }
+  return out;
 }
 
 std::vector<Eigen::Vector3d> NerfMapping::mapPoints() const {
@@ -172,6 +213,7 @@ void NerfMapping::refreshPoses() {
   const uint64_t v = map_.version();
   if (v == seen_map_version_) return;
   seen_map_version_ = v;
+  const auto t0 = Clock::now();
   size_t lost = 0;
   for (size_t i = 0; i < views_.size(); ++i) {
     View& view = views_[i];
@@ -181,6 +223,12 @@ void NerfMapping::refreshPoses() {
     if (!pose) continue;
     trainer_->setViewPose(i, *pose);
     view.pose = *pose;
+  }
+  std::vector<std::vector<nerf::SurfacePoint>> points = surfacePoints(views_);
+  for (size_t i = 0; i < views_.size(); ++i) trainer_->setViewPoints(i, std::move(points[i]));
+  {
+    std::lock_guard<std::mutex> s(stats_mutex_);
+    stats_.refresh_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
   }
   if (lost > 0 && lost == views_.size()) {
     // The sparse map was reset (tracking re-initialised): its keyframes and scale are gone.
@@ -241,9 +289,13 @@ void NerfMapping::stepOnce() {
     std::lock_guard<std::mutex> s(stats_mutex_);
     stats_.steps = step_offset_ + trainer_->steps();
     stats_.samples += st.samples;
+    stats_.rays += st.rays;
+    stats_.depth_rays += st.depth_rays;
     stats_.rollbacks = trainer_->rollbacks();
     stats_.train_seconds += dt;
     stats_.last_loss = st.loss;
+    stats_.last_depth_loss = st.depth_loss;
+    stats_.times += st.times;
     rate_window_.emplace_back(now, stats_.samples);
     while (rate_window_.size() > 2 && now - rate_window_.front().first > 5.0) rate_window_.erase(rate_window_.begin());
     if (rate_window_.size() >= 2) {
@@ -289,6 +341,7 @@ bool NerfMapping::checkRefit() {
 }
 
 void NerfMapping::refit() {
+  const auto t0 = Clock::now();
   const nerf::SceneTransform old = model_->scene;
   const nerf::SceneTransform scene =
       nerf::refitSceneBox(old, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale);
@@ -320,13 +373,20 @@ void NerfMapping::refit() {
   spdlog::info("NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), {}", old.scale, scene.scale,
                how);
   std::vector<nerf::TrainingView> views;
-  for (size_t i = 0; i < trainer_->numViews(); ++i) views.push_back(trainer_->view(i));
+  std::vector<nerf::Appearance> appearance;
+  for (size_t i = 0; i < trainer_->numViews(); ++i) {
+    views.push_back(trainer_->view(i));
+    appearance.push_back(trainer_->viewAppearance(i));
+  }
   trainer_.reset();
   model_ = std::move(fresh);
   trainer_ = std::make_unique<nerf::Trainer>(*model_, std::move(views), opt_.train);
+  for (size_t i = 0; i < appearance.size(); ++i) trainer_->setViewAppearance(i, appearance[i]);
   seen_map_version_ = 0;
   refreshPoses();
   updateWeights();
+  std::lock_guard<std::mutex> s(stats_mutex_);
+  stats_.refit_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
 bool NerfMapping::refitNow() {
@@ -409,6 +469,13 @@ std::vector<SE3> NerfMapping::viewPoses() const {
   std::lock_guard<std::mutex> lock(model_mutex_);
   std::vector<SE3> out;
   for (const View& view : views_) out.push_back(view.pose);
+  return out;
+}
+
+std::vector<nerf::Appearance> NerfMapping::viewAppearances() const {
+  std::lock_guard<std::mutex> lock(model_mutex_);
+  std::vector<nerf::Appearance> out;
+  for (size_t i = 0; trainer_ && i < trainer_->numViews(); ++i) out.push_back(trainer_->viewAppearance(i));
   return out;
 }
 

@@ -13,6 +13,7 @@
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/statistics.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/io/image_io.h"
 #include "nerfslam/nerf/export.h"
@@ -28,13 +29,6 @@ void writePng(const fs::path& path, const cv::Mat& bgr) {
   AtomicOutput o(path);
   if (!cv::imwrite(o.tempPath().string(), bgr)) fail("{}: could not write the image", path.string());
   o.commit();
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  const size_t k = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + long(k), v.end());
-  return v[k];
 }
 
 double mean(const std::vector<double>& v) {
@@ -106,13 +100,17 @@ cv::Mat toTrainingSize(const cv::Mat& image, const Camera& train) {
 }
 
 struct ViewEval {
-  double psnr = 0;
-  cv::Mat side_by_side;  // render | real
-  cv::Mat depth;         // NeRF z-depth (map units)
+  double psnr = 0, ssim = 0;
+  double depth_vs_points = -1;  // median |NeRF depth - point depth| / point depth (-1: no point in view)
+  cv::Mat side_by_side;         // render | real
+  cv::Mat depth;                // NeRF z-depth (map units)
 };
 
-ViewEval evaluateView(const nerf::NerfModel& model, const Camera& cam, const SE3& pose, const cv::Mat& real_bgr,
-                      int threads) {
+// The render at `pose` with the appearance `app` (appearance.h: a held-out frame gets its nearest
+// training view's), scored against the real image, and its depth against the map points `points`
+// (those of the nearest training view) that project into it.
+ViewEval evaluateView(const nerf::NerfModel& model, const Camera& cam, const SE3& pose, const nerf::Appearance& app,
+                      const std::vector<nerf::SurfacePoint>& points, const cv::Mat& real_bgr, int threads) {
   nerf::RenderOptions ro;
   ro.threads = threads;
   ro.normals = false;
@@ -121,11 +119,22 @@ ViewEval evaluateView(const nerf::NerfModel& model, const Camera& cam, const SE3
   cv::Mat rgb_real, f_real;
   cv::cvtColor(real_bgr, rgb_real, cv::COLOR_BGR2RGB);
   rgb_real.convertTo(f_real, CV_32F, 1.0 / 255.0);
-  const cv::Mat pred = cv::min(cv::max(r.rgb, 0.0), 1.0);
+  const cv::Mat pred = cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0);
   ViewEval e;
   e.psnr = eval::psnr(pred, f_real, 1.0);
+  e.ssim = eval::ssim(pred, f_real, 1.0);
   cv::hconcat(nerf::toBgr8(pred), real_bgr, e.side_by_side);
   e.depth = r.depth;
+  std::vector<double> rel;
+  const SE3 T_cam_world = pose.inverse();
+  for (const nerf::SurfacePoint& p : points) {
+    const Eigen::Vector3d pc = T_cam_world * p.position.cast<double>();
+    Eigen::Vector2d uv;
+    if (!cam.projectInImage(pc, &uv)) continue;
+    const float d = r.depth.at<float>(int(uv.y()), int(uv.x()));
+    if (d > 0) rel.push_back(std::abs(d - pc.z()) / pc.z());
+  }
+  if (!rel.empty()) e.depth_vs_points = median(rel);
   return e;
 }
 
@@ -147,9 +156,15 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   const NerfMappingStats st = nerf->stats();
   rep["nerf_steps"] = st.steps;
   rep["nerf_samples"] = st.samples;
+  rep["nerf_rays"] = st.rays;
+  rep["nerf_depth_rays"] = st.depth_rays;
   rep["nerf_train_seconds"] = st.train_seconds;
   rep["nerf_samples_per_second"] = st.train_seconds > 0 ? double(st.samples) / st.train_seconds : 0.0;
   rep["nerf_rollbacks"] = st.rollbacks;
+  rep["nerf_time_s"] = {{"march", st.times.march},         {"field_forward", st.times.field_forward},
+                        {"composite", st.times.composite}, {"field_backward", st.times.field_backward},
+                        {"optimizer", st.times.optimizer}, {"grid_update", st.times.grid_update},
+                        {"refresh", st.refresh_seconds},   {"refit", st.refit_seconds}};
   rep["nerf_refits"] = st.refits;
   rep["nerf_views"] = st.views;
   rep["nerf_keyframes_dropped"] = st.keyframes_dropped;
@@ -181,7 +196,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   const auto depth_idx = depthIndex(ds, &depth_why);
   if (!gt_alignment) depth_why = "no Sim(3) alignment to ground truth";
 
-  std::vector<double> psnr_held, psnr_kf, depth_rel;
+  std::vector<double> psnr_held, ssim_held, psnr_kf, depth_rel, depth_pts;
   nlohmann::json held_list = nlohmann::json::array();
   ensureDirectory(out / "nerf" / "heldout");
   ensureDirectory(out / "nerf" / "keyframes");
@@ -193,16 +208,30 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
     kf_ids.push_back(view_kfs[k]);
   }
   const std::vector<SE3> view_poses = nerf->viewPoses();
+  const std::vector<nerf::Appearance> view_app = nerf->viewAppearances();
+  const auto appearanceNear = [&](const SE3& pose) {
+    const size_t k = nerf::nearestView(view_poses, pose);
+    return k < view_app.size() ? view_app[k] : nerf::Appearance{};
+  };
+  // The map points of the held-out frames' nearest training views (taken before the model lock).
+  std::vector<std::vector<nerf::SurfacePoint>> held_points;
+  const std::vector<size_t> held_pick = spread(heldout.size(), eo.heldout_frames);
+  for (size_t k : held_pick)
+    held_points.push_back(
+        view_poses.empty() ? std::vector<nerf::SurfacePoint>{}
+                           : nerf->trainingView(nerf::nearestView(view_poses, pose_at[heldout[k]->timestamp])).points);
   nerf->withModel([&](nerf::NerfModel& model) {
-    for (size_t k : spread(heldout.size(), eo.heldout_frames)) {
-      const FrameRecord& r = *heldout[k];
+    for (size_t h = 0; h < held_pick.size(); ++h) {
+      const FrameRecord& r = *heldout[held_pick[h]];
       const SE3 pose = pose_at[r.timestamp];
       const DatasetFrame f = ds.load(r.index, ImageMode::kColor);
       const cv::Mat real = toTrainingSize(f.image, cam);
-      const ViewEval e = evaluateView(model, cam, pose, real, eo.threads);
+      const ViewEval e = evaluateView(model, cam, pose, appearanceNear(pose), held_points[h], real, eo.threads);
       psnr_held.push_back(e.psnr);
+      ssim_held.push_back(e.ssim);
+      if (e.depth_vs_points >= 0) depth_pts.push_back(e.depth_vs_points);
       writePng(out / "nerf" / "heldout" / fmt::format("{:06d}.png", r.index), e.side_by_side);
-      nlohmann::json j{{"frame", r.index}, {"psnr", e.psnr}};
+      nlohmann::json j{{"frame", r.index}, {"psnr", e.psnr}, {"ssim", e.ssim}};
       if (gt_alignment && !depth_idx.empty()) {
         if (auto dp = nearestDepth(depth_idx, r.timestamp)) {
           cv::Mat gt16 = readImage(*dp, ImageMode::kUnchanged);
@@ -231,7 +260,8 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
       const nerf::TrainingView& v = kf_views[j];
       cv::Mat bgr;
       cv::cvtColor(v.image, bgr, cv::COLOR_RGBA2BGR);
-      const ViewEval e = evaluateView(model, cam, v.T_world_cam, bgr, eo.threads);
+      const ViewEval e =
+          evaluateView(model, cam, v.T_world_cam, appearanceNear(v.T_world_cam), v.points, bgr, eo.threads);
       psnr_kf.push_back(e.psnr);
       writePng(out / "nerf" / "keyframes" / fmt::format("{:06d}.png", kf_ids[j]), e.side_by_side);
     }
@@ -258,6 +288,8 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   });
   rep["nerf_psnr_heldout"] = mean(psnr_held);
   rep["nerf_psnr_heldout_frames"] = psnr_held.size();
+  rep["nerf_ssim_heldout"] = mean(ssim_held);
+  if (!depth_pts.empty()) rep["nerf_depth_vs_points_heldout"] = median(depth_pts);
   rep["nerf_psnr_keyframes"] = mean(psnr_kf);
   rep["nerf_heldout"] = held_list;
   if (!depth_rel.empty())

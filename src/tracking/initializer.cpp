@@ -10,17 +10,12 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/statistics.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/tracking/two_view_geometry.h"
 
 namespace nerfslam {
 namespace {
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
 
 InitializationResult refuse(InitializationResult r, const std::string& why) {
   r.success = false;

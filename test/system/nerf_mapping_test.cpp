@@ -120,6 +120,49 @@ TEST(NerfMapping, TrainsInItsThreadOnPublishedKeyframes) {
   EXPECT_GT(fx.psnrAt(nm, 3), 12.0);
 }
 
+// Each training view carries the map points its keyframe observes (sparse depth for the NeRF), at
+// their positions in the map: moved by bundle adjustment, they move; erased, they stop supervising.
+TEST(NerfMapping, ViewsCarryTheirMapPointsAndFollowThem) {
+  Fixture fx(4);
+  NerfMapping nm(*fx.map, fx.bus, testOptions());
+  nm.start();
+  for (const auto& ev : fx.events) EXPECT_EQ(fx.bus.publish(ev), 1);
+  ASSERT_TRUE(waitFor([&] { return nm.stats().views == 4 && nm.stats().steps >= 20; }, 120));
+  const std::vector<MapPoint> points = fx.map->points();
+  const nerf::TrainingView v0 = nm.trainingView(0);
+  ASSERT_GT(v0.points.size(), 50u);
+  EXPECT_EQ(v0.points.size(), points.size());
+  size_t on_surface = 0;
+  for (const auto& p : v0.points) {
+    // On the ground-truth surface: its depth is the rendered depth at its pixel (corners sit on depth
+    // edges, where the next pixel may be another surface: most, not all).
+    const Eigen::Vector3d pc = fx.frames[0].T_world_cam.inverse() * p.position.cast<double>();
+    const Eigen::Vector2d uv = fx.seq->camera().project(pc);
+    ASSERT_TRUE(uv.x() >= 0 && uv.y() >= 0 && uv.x() < 160 && uv.y() < 120);
+    on_surface += std::abs(pc.z() - fx.frames[0].depth.at<float>(int(uv.y()), int(uv.x()))) < 0.02 * pc.z();
+    EXPECT_FLOAT_EQ(p.weight, 0.5f);  // two observations of four for full trust, no reprojection error
+  }
+  EXPECT_GT(on_surface, v0.points.size() * 8 / 10);
+  // Keyframe 1's "observations" are its keypoints of the same index, elsewhere in its image: they do
+  // not reproject, so they get too little weight to supervise.
+  EXPECT_LT(nm.trainingView(1).points.size(), points.size() / 4);
+  EXPECT_TRUE(nm.trainingView(2).points.empty());  // keyframe 2 observes none of them
+  // Bundle adjustment moves one point and erases another.
+  MapUpdate u;
+  const Eigen::Vector3d moved = points[0].position + Eigen::Vector3d(0.01, 0.02, 0.0);
+  u.point_positions = {{points[0].id, moved}};
+  u.erase_points = {points[1].id};
+  fx.map->applyUpdate(u);
+  ASSERT_TRUE(waitFor(
+      [&] {
+        const auto pts = nm.trainingView(0).points;
+        return pts.size() == points.size() - 1 && pts.front().position.isApprox(moved.cast<float>(), 1e-6f);
+      },
+      60));
+  nm.stop();
+  EXPECT_GT(nm.stats().depth_rays, 0);
+}
+
 TEST(NerfMapping, DivergenceIsRolledBackAndTrainingGoesOn) {
   // A forced NaN in the running trainer's model (as a diverging step would leave it): the next step
   // detects the non-finite loss, rolls back to the last snapshot, counts it, and training goes on.

@@ -143,6 +143,14 @@ class Map {
   std::vector<KeyframeId> keyframeIds() const;  // ordered by id
   std::vector<MapPoint> points() const;
   std::vector<MapPoint> points(const std::vector<PointId>& ids) const;  // unknown ids skipped
+  // What a dense map needs of points, without copying descriptors and observations: for each id
+  // in `ids`, its position, observation count and found ratio (observations 0: the point is gone).
+  struct PointSummary {
+    Eigen::Vector3d position = Eigen::Vector3d::Zero();
+    int observations = 0;
+    double found_ratio = 0;
+  };
+  std::vector<PointSummary> pointSummaries(const std::vector<PointId>& ids) const;
   std::optional<KeyframeId> lastKeyframeId() const;
   size_t numKeyframes() const;
   size_t numPoints() const;

@@ -63,7 +63,7 @@ struct NerfMappingOptions {
   double downscale = 2.0;
   int log2_hashmap_size = 19;
   int keyframe_queue = 32;
-  double min_view_distance = 0.02;
+  double min_view_distance = 0.05;
   double min_view_angle_deg = 5.0;
   int holdout_every = 0;
   int recent_keyframes = 4;
@@ -92,8 +92,8 @@ struct NerfMappingOptions {
     v("keyframe_queue", keyframe_queue, "Keyframes waiting for the NeRF thread before the oldest are dropped",
       check::range(1, 100000));
     v("min_view_distance", min_view_distance,
-      "A keyframe becomes a training view unless an existing view is closer than this (fraction of the scene box) "
-      "and within min_view_angle_deg",
+      "A keyframe becomes a training view unless an existing view is closer than this (fraction of the median "
+      "depth of the map points it sees; of the scene box when it sees none) and within min_view_angle_deg",
       check::range(0.0, 1.0));
     v("min_view_angle_deg", min_view_angle_deg, "See min_view_distance", check::range(0.0, 180.0));
     v("holdout_every", holdout_every,
@@ -128,6 +128,8 @@ struct NerfMappingOptions {
 struct NerfMappingStats {
   int64_t steps = 0;
   int64_t samples = 0;
+  int64_t rays = 0;
+  int64_t depth_rays = 0;  // of those, drawn through a map point (sparse depth)
   int64_t rollbacks = 0;
   int64_t refits = 0;
   int views = 0;
@@ -139,6 +141,12 @@ struct NerfMappingStats {
   double samples_per_second = 0;
   double psnr_recent = 0;  // PSNR of the training rays of the newest keyframes (0 before any)
   double last_loss = 0;
+  double last_depth_loss = 0;  // mean line-of-sight loss of the last step's depth rays
+  // Where the NeRF thread's time goes: the trainer's stages (seconds, summed over steps), reading
+  // poses and points back from the map, and box re-fits (with their distillation).
+  nerf::StageTimes times;
+  double refresh_seconds = 0;
+  double refit_seconds = 0;
 };
 
 class NerfMapping {
@@ -167,6 +175,8 @@ class NerfMapping {
   nerf::TrainingView trainingView(size_t i) const;
   // Poses the trainer uses for its views (refreshed from the Map every pose_refresh_steps steps).
   std::vector<SE3> viewPoses() const;
+  // The appearance (exposure, white balance) the trainer learnt for each view, in view order.
+  std::vector<nerf::Appearance> viewAppearances() const;
   // Runs fn on the model under the model lock (between steps); false when there is no model yet.
   bool withModel(const std::function<void(nerf::NerfModel&)>& fn) const;
   // Continues from a saved model (a map folder's NeRF, nerf/model_io.h) with the Map's current
@@ -186,6 +196,10 @@ class NerfMapping {
     uint64_t frame = 0;  // Frame::id of its image
     SE3 pose;            // current pose
     bool valid = true;   // false: the keyframe left the map (not sampled)
+    // The map points its keyframe observed when it became a view, and their keypoints (level-0
+    // pixels of the keyframe camera): its sparse depth, re-read as bundle adjustment moves them.
+    std::vector<PointId> point_ids;
+    std::vector<Eigen::Vector2f> keypoints;
   };
   // A keyframe waiting for the model (before the box is fitted).
   struct PendingView {
@@ -197,7 +211,10 @@ class NerfMapping {
   void drainQueue(bool wait);
   void addKeyframe(const KeyframeEvent& ev);
   void createModel();
-  bool isNewView(const SE3& pose) const;
+  bool isNewView(const SE3& pose, double median_depth) const;
+  // The views' surface points (the sparse depth the trainer supervises with) at their current
+  // poses, with weights from each point's observations, found ratio and reprojection error.
+  std::vector<std::vector<nerf::SurfacePoint>> surfacePoints(const std::vector<View>& views) const;
   void refreshPoses();
   void updateWeights();
   bool checkRefit();
@@ -222,6 +239,7 @@ class NerfMapping {
   std::vector<View> views_;
   std::vector<PendingView> pending_;
   Camera train_camera_;
+  Camera keyframe_camera_;  // the keyframes' camera (keypoints are in its pixels)
   uint64_t seen_map_version_ = 0;
   int64_t since_refit_check_ = 0;
   int64_t keyframes_seen_ = 0;
