@@ -14,6 +14,7 @@
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/nerf/distill.h"
 #include "nerfslam/nerf/model_io.h"
+#include "nerfslam/nerf/renderer.h"
 #include "nerfslam/nerf/scene_box.h"
 
 namespace nerfslam {
@@ -38,6 +39,7 @@ NerfMapping::~NerfMapping() {
 void NerfMapping::start() {
   if (started_) return;
   started_ = true;
+  start_time_ = nowSeconds();
   thread_ = std::thread([this] {
     setThreadName("nerfslam-nerf");
     run();
@@ -96,6 +98,7 @@ void NerfMapping::drainQueue(bool wait) {
 void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
   if (!ev.frame) return;
   if (opt_.holdout_every > 0 && ++keyframes_seen_ % opt_.holdout_every == 0) {
+    if (opt_.heldout_interval_s > 0) keepHeldout(ev);
     std::lock_guard<std::mutex> s(stats_mutex_);
     ++stats_.keyframes_held_out;
     return;
@@ -309,6 +312,55 @@ void NerfMapping::stepOnce() {
   if (now - last_psnr_time_ >= opt_.psnr_interval_s) {
     last_psnr_time_ = now;
     measurePsnr();
+  }
+  if (opt_.heldout_interval_s > 0 && now - last_heldout_time_ >= opt_.heldout_interval_s) {
+    last_heldout_time_ = now;
+    measureHeldout();
+  }
+}
+
+void NerfMapping::keepHeldout(const KeyframeEvent& ev) {
+  cv::Mat bgr = ev.frame->colour;
+  if (bgr.empty()) {
+    if (ev.frame->pyramid.empty()) return;
+    cv::cvtColor(ev.frame->pyramid[0], bgr, cv::COLOR_GRAY2BGR);
+  }
+  const nerf::TrainingView small =
+      nerf::makeTrainingView(bgr, ev.frame->camera, ev.T_world_cam, opt_.downscale * opt_.heldout_downscale,
+                             fmt::format("held-out keyframe {}", ev.id));
+  HeldOutView h;
+  h.keyframe = ev.id;
+  h.pose = ev.T_world_cam;
+  small.image.convertTo(h.rgb, CV_32F, 1.0 / 255.0);
+  heldout_camera_ = small.camera;
+  heldout_.push_back(std::move(h));
+  if (int(heldout_.size()) > opt_.heldout_eval_views) heldout_.erase(heldout_.begin());
+}
+
+void NerfMapping::measureHeldout() {
+  std::vector<SE3> poses;
+  for (const View& v : views_) poses.push_back(v.pose);
+  std::vector<double> psnr;
+  for (HeldOutView& h : heldout_) {
+    h.pose = map_.resolvePose(h.keyframe).value_or(h.pose);
+    nerf::RenderOptions ro;
+    ro.threads = 1;
+    ro.normals = false;
+    ro.background = {0.0, 0.0, 0.0};
+    const nerf::RenderResult r = nerf::renderView(*model_, heldout_camera_, h.pose, ro);
+    const nerf::Appearance app =
+        poses.empty() ? nerf::Appearance{} : trainer_->viewAppearance(nerf::nearestView(poses, h.pose));
+    psnr.push_back(eval::psnr(cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0), h.rgb, 1.0));
+  }
+  double mean = 0;
+  for (double p : psnr) mean += p / double(psnr.size());
+  std::lock_guard<std::mutex> s(stats_mutex_);
+  if (!psnr.empty()) stats_.psnr_heldout = mean;
+  auto& hist = stats_.psnr_history;
+  hist.push_back({nowSeconds() - start_time_, stats_.steps, stats_.psnr_recent, psnr.empty() ? 0.0 : mean});
+  if (hist.size() >= 512) {
+    for (size_t i = 1; 2 * i < hist.size(); ++i) hist[i] = hist[2 * i];
+    hist.resize(hist.size() / 2);
   }
 }
 

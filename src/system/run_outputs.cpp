@@ -161,6 +161,12 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   rep["nerf_train_seconds"] = st.train_seconds;
   rep["nerf_samples_per_second"] = st.train_seconds > 0 ? double(st.samples) / st.train_seconds : 0.0;
   rep["nerf_rollbacks"] = st.rollbacks;
+  rep["nerf_psnr_heldout_running"] = st.psnr_heldout;
+  nlohmann::json curve = nlohmann::json::array();
+  for (const auto& p : st.psnr_history)
+    curve.push_back(
+        {{"seconds", p.seconds}, {"steps", p.steps}, {"psnr_recent", p.psnr_recent}, {"psnr_heldout", p.psnr_heldout}});
+  rep["nerf_psnr_over_time"] = curve;
   rep["nerf_time_s"] = {{"march", st.times.march},         {"field_forward", st.times.field_forward},
                         {"composite", st.times.composite}, {"field_backward", st.times.field_backward},
                         {"optimizer", st.times.optimizer}, {"grid_update", st.times.grid_update},

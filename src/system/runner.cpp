@@ -206,6 +206,7 @@ void printProgress(SlamSystem& slam, std::size_t index, std::size_t frames, std:
     const NerfMappingStats ns = n->stats();
     nerf_line = fmt::format("  | NeRF {} views, {} steps, {:.1f} steps/s, {:.2f} M samples/s, PSNR {:.1f} dB", ns.views,
                             ns.steps, ns.steps_per_second, ns.samples_per_second / 1e6, ns.psnr_recent);
+    if (ns.psnr_heldout > 0) nerf_line += fmt::format(" (held-out {:.1f} dB)", ns.psnr_heldout);
   }
   std::fprintf(stderr, "frame %zu/%zu  %.1f frames/s  keyframes %zu  map points %zu  %s%s\n", index + 1, frames,
                processed / std::max(secs, 1e-9), slam.map().numKeyframes(), slam.map().numPoints(),

@@ -125,9 +125,9 @@ TEST(Occupancy, KeepEmptyCarvesTheLinesOfSightAndKeepOccupiedWins) {
   grid.update(dense, p);
   for (float x = 0.1f; x < 0.59f - 1.5f / 128; x += 0.25f / 128)
     EXPECT_FALSE(grid.occupied(Eigen::Vector3f(x, 0.5f, 0.5f), 0)) << x;
-  EXPECT_TRUE(grid.occupied(Eigen::Vector3f(0.6f, 0.5f, 0.5f), 0));      // pinned
+  EXPECT_TRUE(grid.occupied(Eigen::Vector3f(0.6f, 0.5f, 0.5f), 0));              // pinned
   EXPECT_TRUE(grid.occupied(Eigen::Vector3f(0.3f, 0.5f + 2.f / 128, 0.5f), 0));  // beside the line
-  EXPECT_TRUE(grid.occupied(Eigen::Vector3f(0.05f, 0.5f, 0.5f), 0));     // before its start
+  EXPECT_TRUE(grid.occupied(Eigen::Vector3f(0.05f, 0.5f, 0.5f), 0));             // before its start
   for (float x = -0.4f; x < -0.2f; x += 0.5f / 128) EXPECT_FALSE(grid.occupied(Eigen::Vector3f(x, 0.2f, 0.2f), 1)) << x;
   // A cell off every segment and pin keeps its density: all but the carved cells are occupied.
   const double carved = 1.0 - grid.occupiedFraction();
@@ -195,7 +195,8 @@ TEST(Appearance, RecoversTheExposureOfDarkenedCopies) {
   for (size_t v = 0; v + 1 < trainer.numViews(); v += 2) {
     const Appearance& b = trainer.viewAppearance(v);
     const Appearance& d = trainer.viewAppearance(v + 1);
-    for (size_t c = 0; c < 3; ++c) mean_log_gain += (b.log_gain[c] + d.log_gain[c]) / (3.0 * double(trainer.numViews()));
+    for (size_t c = 0; c < 3; ++c)
+      mean_log_gain += (b.log_gain[c] + d.log_gain[c]) / (3.0 * double(trainer.numViews()));
     const cv::Mat& im = views[v].image;
     for (int y = 0; y < im.rows; y += 4)
       for (int x = 0; x < im.cols; x += 4)
@@ -307,9 +308,10 @@ TEST(Trainer, SparseDepthPutsTheSurfaceAtThePoints) {
     return Errors{median(at_points), median(err)};
   };
   const Errors without = depthError(false), with = depthError(true);
-  std::printf("sparse depth: median depth error at the training views' points %.3f without them, %.3f with; "
-              "in a novel view %.3f and %.3f\n",
-              without.at_points, with.at_points, without.novel, with.novel);
+  std::printf(
+      "sparse depth: median depth error at the training views' points %.3f without them, %.3f with; "
+      "in a novel view %.3f and %.3f\n",
+      without.at_points, with.at_points, without.novel, with.novel);
   EXPECT_LT(with.at_points, 0.8 * without.at_points);
   EXPECT_LT(with.at_points, 0.08);  // the surface's width: 3 % of the distance (2.2)
   // Between the points the surface holds (the free-space term does not carve it).

@@ -76,6 +76,9 @@ struct NerfMappingOptions {
   int refit_check_steps = 200;
   int distill_steps = 300;
   double psnr_interval_s = 1.0;
+  double heldout_interval_s = 10.0;
+  int heldout_eval_views = 4;
+  double heldout_downscale = 8.0;
   // Offline runs: training after the sequence, with the final poses (tracking and mapping may end
   // before the NeRF has had much time beside them).
   double final_train_seconds = 60.0;
@@ -116,6 +119,15 @@ struct NerfMappingOptions {
       check::range(0, 1000000));
     v("psnr_interval_s", psnr_interval_s, "Seconds between running-PSNR updates (newest keyframes' training rays)",
       check::range(0.1, 1e6));
+    v("heldout_interval_s", heldout_interval_s,
+      "Seconds between renders of the newest held-out keyframes (holdout_every) for the running held-out PSNR "
+      "(0: never)",
+      check::range(0.0, 1e6));
+    v("heldout_eval_views", heldout_eval_views, "Newest held-out keyframes rendered for the running held-out PSNR",
+      check::range(1, 100));
+    v("heldout_downscale", heldout_downscale,
+      "Those renders are this much smaller than the training views (they cost the NeRF thread's time)",
+      check::range(1.0, 64.0));
     v("final_train_seconds", final_train_seconds,
       "Offline runs: seconds of NeRF training after the sequence, with the final poses", check::range(0.0, 1e6));
     v("final_threads", final_threads, "Threads of the final training (0: all hardware threads)", check::range(0, 256));
@@ -140,6 +152,18 @@ struct NerfMappingStats {
   double steps_per_second = 0;      // over the last few seconds
   double samples_per_second = 0;
   double psnr_recent = 0;  // PSNR of the training rays of the newest keyframes (0 before any)
+  // PSNR of renders of the newest held-out keyframes (holdout_every; with their nearest view's
+  // appearance, heldout_downscale smaller than the training views), every heldout_interval_s; 0
+  // before the first.
+  double psnr_heldout = 0;
+  // The map learning over time: one entry per heldout_interval_s (seconds since start(), steps, the
+  // two PSNRs above), at most 512 (every other one dropped when full).
+  struct PsnrPoint {
+    double seconds;
+    int64_t steps;
+    double psnr_recent, psnr_heldout;
+  };
+  std::vector<PsnrPoint> psnr_history;
   double last_loss = 0;
   double last_depth_loss = 0;  // mean line-of-sight loss of the last step's depth rays
   // Where the NeRF thread's time goes: the trainer's stages (seconds, summed over steps), reading
@@ -220,6 +244,8 @@ class NerfMapping {
   bool checkRefit();
   void refit();
   void measurePsnr();
+  void measureHeldout();
+  void keepHeldout(const KeyframeEvent& ev);
   void stepOnce();
   std::vector<Eigen::Vector3d> mapPoints() const;    // positions of the sparse map's points
   std::vector<Eigen::Vector3d> viewCentres() const;  // camera centres of the views
@@ -248,6 +274,16 @@ class NerfMapping {
   // when a refit distilled it (0 when it started afresh).
   int64_t field_steps_before_ = 0;
   double last_psnr_time_ = -1e9;
+  double last_heldout_time_ = -1e9;
+  double start_time_ = 0;
+  // The newest held-out keyframes (small images, RGB float) for the running held-out PSNR.
+  struct HeldOutView {
+    KeyframeId keyframe = -1;
+    SE3 pose;
+    cv::Mat rgb;
+  };
+  std::vector<HeldOutView> heldout_;
+  Camera heldout_camera_;
 
   mutable std::mutex stats_mutex_;
   NerfMappingStats stats_;
