@@ -85,8 +85,7 @@ TrajectoryPlot plotTrajectories(const std::vector<PlotSeries>& series, const Tra
   const int fw = o.width - left - right, fh = o.height - top - bottom;
   // One tick step for both axes (equal scale: grid squares), the axes' ends on ticks, then the
   // shorter side widened (centred) to fill the frame at that scale.
-  const double step =
-      std::max(tickStep(hh - hl, std::max(2, fw / 160)), tickStep(vh - vl, std::max(2, fh / 160)));
+  const double step = std::max(tickStep(hh - hl, std::max(2, fw / 160)), tickStep(vh - vl, std::max(2, fh / 160)));
   hl = std::floor(hl / step) * step, hh = std::ceil(hh / step) * step;
   vl = std::floor(vl / step) * step, vh = std::ceil(vh / step) * step;
   const double scale = std::min(fw / (hh - hl), fh / (vh - vl));  // pixels per unit
@@ -122,8 +121,7 @@ TrajectoryPlot plotTrajectories(const std::vector<PlotSeries>& series, const Tra
   text(img, hlabel, {pl.frame.x + fw / 2 - textSize(hlabel, 0.6).width / 2, o.height - 16}, 0.6);
   text(img, vlabel, {8, pl.frame.y - 18}, 0.6);
   if (!o.title.empty()) text(img, o.title, {left, 34}, 0.7, 2);
-  text(img, fmt::format("top view onto the {}; grid {} {}", pl.plane, tickLabel(step, step), o.unit), {left, 62},
-       0.55);
+  text(img, fmt::format("top view onto the {}; grid {} {}", pl.plane, tickLabel(step, step), o.unit), {left, 62}, 0.55);
 
   // The series (the first underneath, thicker), each with a dot at its start.
   cv::Mat plot = img(pl.frame);

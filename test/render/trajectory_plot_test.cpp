@@ -26,7 +26,8 @@ TEST(TrajectoryPlot, ShowsThePlaneOfLargestMotionWithTicksSpanningIt) {
   for (auto& p : est) p += Eigen::Vector3d(0.3, 0.0, -0.4);
   TrajectoryPlotOptions o;
   o.title = "ATE";
-  const TrajectoryPlot pl = plotTrajectories({{drive(), {150, 150, 150}, "ground truth"}, {est, est_color, "estimate"}}, o);
+  const TrajectoryPlot pl =
+      plotTrajectories({{drive(), {150, 150, 150}, "ground truth"}, {est, est_color, "estimate"}}, o);
   ASSERT_EQ(pl.image.size(), cv::Size(o.width, o.height));
   EXPECT_EQ(pl.plane, "x-z plane");
   EXPECT_EQ(pl.axis_h, 0);
@@ -82,7 +83,8 @@ TEST(TrajectoryPlot, ShowsThePlaneOfLargestMotionWithTicksSpanningIt) {
 
 TEST(TrajectoryPlot, PicksTheTopViewOfARoomWalkAndRefusesNothing) {
   std::vector<Eigen::Vector3d> walk;
-  for (int i = 0; i < 100; ++i) walk.emplace_back(std::cos(i * 0.05) * 2.0, std::sin(i * 0.05) * 1.5, 1.5 + 0.02 * (i % 3));
+  for (int i = 0; i < 100; ++i)
+    walk.emplace_back(std::cos(i * 0.05) * 2.0, std::sin(i * 0.05) * 1.5, 1.5 + 0.02 * (i % 3));
   TrajectoryPlotOptions o;
   o.width = 640;
   o.height = 480;

@@ -29,11 +29,11 @@ struct TrajectoryPlotOptions {
 };
 
 struct TrajectoryPlot {
-  cv::Mat image;               // BGR 8-bit
-  cv::Rect frame;              // the plot area (inside the axes), in pixels
-  int axis_h = 0, axis_v = 1;  // world axes shown horizontally and vertically (0 x, 1 y, 2 z)
-  double h_lo = 0, h_hi = 1;   // world coordinates at the frame's left and right edges
-  double v_lo = 0, v_hi = 1;   // ... at its bottom and top edges
+  cv::Mat image;                         // BGR 8-bit
+  cv::Rect frame;                        // the plot area (inside the axes), in pixels
+  int axis_h = 0, axis_v = 1;            // world axes shown horizontally and vertically (0 x, 1 y, 2 z)
+  double h_lo = 0, h_hi = 1;             // world coordinates at the frame's left and right edges
+  double v_lo = 0, v_hi = 1;             // ... at its bottom and top edges
   std::vector<double> h_ticks, v_ticks;  // labelled tick values, 1, 2 or 5 times a power of ten apart
   std::string plane;                     // e.g. "x-z plane"
 
