@@ -260,7 +260,10 @@ Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std
   const double scene = std::max(ahi - alo, bhi - blo);
   const double half_fov = 0.5 * opts.fov_deg * M_PI / 180.0;
   Overview ov;
-  ov.traversal = path > 0.4 * scene && (end - start).dot(dir) > 0.5 * path;
+  // An open path, long against the scene, or shorter but with the cameras looking where they go.
+  const bool open = (end - start).dot(dir) > 0.5 * path;
+  const bool looking_ahead = mean_fwd.dot(dir) > 0.7;
+  ov.traversal = open && (path > 0.4 * scene || (looking_ahead && path > 0.2 * scene));
   if (ov.traversal) {
     // Looking 30 degrees down at a point ahead of the start, from behind and above it.
     ov.target = start + 0.45 * path * dir;

@@ -63,8 +63,12 @@ TrajectoryPlot plotTrajectories(const std::vector<PlotSeries>& series, const Tra
   for (const auto& p : ref->positions) rlo = rlo.cwiseMin(p), rhi = rhi.cwiseMax(p);
   const Eigen::Vector3d spread = rhi - rlo;
   int drop = 0;
-  for (int k = 1; k < 3; ++k)
-    if (spread[k] < spread[drop]) drop = k;
+  if (o.up && o.up->allFinite() && o.up->norm() > 0) {
+    o.up->cwiseAbs().maxCoeff(&drop);
+  } else {
+    for (int k = 1; k < 3; ++k)
+      if (spread[k] < spread[drop]) drop = k;
+  }
   pl.axis_h = drop == 0 ? 1 : 0;
   pl.axis_v = drop == 2 ? 1 : 2;
   const char* names = "xyz";

@@ -196,6 +196,7 @@ render::TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& 
   render::TrajectoryPlotOptions o;
   std::vector<render::PlotSeries> series;
   if (!gt.empty() && align) {
+    o.up = upFromCameras(posesOf(gt));
     series.push_back({positions(gt, Sim3()), {150, 150, 150}, "ground truth"});
     series.push_back({positions(traj, *align), est_color, "estimate"});
     o.title = rep.contains("ate_rmse_m")
@@ -205,6 +206,7 @@ render::TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& 
                   : "estimate against ground truth";
   } else {
     series.push_back({positions(traj, Sim3()), est_color, "estimate"});
+    o.up = upFromCameras(posesOf(traj));
     o.unit = "map units";
     o.title = "estimated trajectory (no ground truth: map units, the scale is unknown)";
   }

@@ -255,10 +255,10 @@ int countColor(const cv::Mat& img, const cv::Vec3b& c) {
 
 TEST(Preview, OverviewOfARoomLooksInFromAboveWithoutTheCeiling) {
   const PreviewCloud room = boxRoom();
-  // A handheld walk at 1.5 m looking along +x.
+  // A handheld walk at 1.5 m along the far wall, looking at it (+x).
   std::vector<SE3> cams;
   for (int i = 0; i < 20; ++i)
-    cams.push_back(lookAt({-1.0 + 0.1 * i, 0.2 * std::sin(i * 0.3), 1.5}, {3.0, 0.3 * std::cos(i * 0.2), 1.2}));
+    cams.push_back(lookAt({0.2 * std::sin(i * 0.3), -1.0 + 0.1 * i, 1.5}, {3.0, 0.3 * std::cos(i * 0.2), 1.2}));
   PreviewOptions o;
   o.width = 320;
   o.height = 240;

@@ -98,6 +98,14 @@ TEST(TrajectoryPlot, PicksTheTopViewOfARoomWalkAndRefusesNothing) {
     EXPECT_LE(pl.v_ticks.front(), p.y());
     EXPECT_GE(pl.v_ticks.back(), p.y());
   }
+  // A drive along z that climbs more than it turns: by extent the y-z plane; told that -y is up (a
+  // camera's image "up"), the top view onto the ground, x-z.
+  std::vector<Eigen::Vector3d> climb;
+  for (int i = 0; i < 50; ++i) climb.emplace_back(0.01 * i, -0.05 * i, 1.0 * i);
+  EXPECT_EQ(plotTrajectories({{climb, {0, 0, 255}, "estimate"}}, o).plane, "y-z plane");
+  o.up = Eigen::Vector3d(0.05, -1.0, 0.1);
+  EXPECT_EQ(plotTrajectories({{climb, {0, 0, 255}, "estimate"}}, o).plane, "x-z plane");
+  o.up.reset();
   EXPECT_THROW(plotTrajectories({}, o), Error);
   EXPECT_THROW(plotTrajectories({{{}, {0, 0, 255}, "empty"}}, o), Error);
   o.width = 100;

@@ -106,7 +106,8 @@ TEST(Flythrough, ATimeBudgetCutsTheFrameCount) {
   o.frames = 500;
   o.max_seconds = 1e-6;
   o.codecs.clear();
-  const FlythroughResult r = writeFlythrough(model, Camera::pinhole(32, 24, 30, 30, 16, 12), line(4, 0.1), o, dir.path());
+  const FlythroughResult r =
+      writeFlythrough(model, Camera::pinhole(32, 24, 30, 30, 16, 12), line(4, 0.1), o, dir.path());
   EXPECT_EQ(r.frames_requested, 500);
   EXPECT_EQ(r.frames, 2);
   EXPECT_TRUE(fs::exists(dir / "flythrough" / "000001.png"));

@@ -68,8 +68,8 @@ void autoView(const PreviewScene& scene, const PreviewOptions& opts, Eigen::Vect
 
 // A viewpoint from which a reconstructed surface (`points`) seen by cameras at `cameras` (T_world_cam,
 // in order) reads at a glance, with opts.up as up and opts.fov_deg:
-// - a traversal (an open camera path long against the scene, e.g. a drive): from behind and above
-//   the path's start, looking along its main direction;
+// - a traversal (an open camera path long against the scene, or a fifth of it with the cameras looking
+//   along it, e.g. a drive): from behind and above the path's start, looking along its main direction;
 // - a compact scene (a room, an object): from outside the points' bounds and above them, looking at
 //   their centre from behind the cameras' mean viewing direction; when the cameras are inside the
 //   bounds (a room), `max_height` is set just above the highest camera, so a ceiling does not hide the

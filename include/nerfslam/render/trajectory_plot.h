@@ -7,6 +7,7 @@
 //   TrajectoryPlotOptions o;
 //   o.title = "ATE RMSE 0.021 m (0.05 % of the 41.2 m path)";
 //   cv::Mat img = plotTrajectories({gt, est}, o).image;
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -26,6 +27,9 @@ struct TrajectoryPlotOptions {
   int height = 900;
   std::string unit = "m";  // axis labels: "x [m]"; e.g. "map units" when the scale is unknown
   std::string title;       // first line above the plot
+  // The scene's up direction (e.g. from the cameras), when known: the world axis closest to it is the
+  // one not shown (a top view), whatever the motion along it.
+  std::optional<Eigen::Vector3d> up;
 };
 
 struct TrajectoryPlot {
@@ -42,9 +46,8 @@ struct TrajectoryPlot {
 };
 
 // The plane is that of the two world axes along which the first series (the reference) spreads most,
-// lower axis index horizontal; every series fits in the frame, whose ends on each axis are ticks
-// or beyond them. Throws Error when no
-// series has a position or the size is outside 200..8192.
+// or those across options.up, lower axis index horizontal; every series fits in the frame, whose ends on each axis are
+// ticks or beyond them. Throws Error when no series has a position or the size is outside 200..8192.
 TrajectoryPlot plotTrajectories(const std::vector<PlotSeries>& series, const TrajectoryPlotOptions& options);
 
 }  // namespace nerfslam::render

@@ -36,9 +36,9 @@ struct FlythroughResult {
   std::string codec;           // "avc1", "mp4v", or "png"
   int frames = 0;              // written
   int frames_requested = 0;    // FlythroughOptions::frames (more than `frames` when the budget cut them)
-  cv::Size size;       // frame size: the camera's, rounded down to even numbers (video codecs need them)
-  double fps = 0;      // frames per second of the video
-  double seconds = 0;  // wall time of rendering and writing
+  cv::Size size;               // frame size: the camera's, rounded down to even numbers (video codecs need them)
+  double fps = 0;              // frames per second of the video
+  double seconds = 0;          // wall time of rendering and writing
 };
 
 // Renders the model from `camera` at flythroughPoses(trajectory, frames) and writes dir/flythrough.mp4
