@@ -70,10 +70,11 @@ void autoView(const PreviewScene& scene, const PreviewOptions& opts, Eigen::Vect
 // in order) reads at a glance, with opts.up as up and opts.fov_deg:
 // - a traversal (an open camera path long against the scene, or a fifth of it with the cameras looking
 //   along it, e.g. a drive): from behind and above the path's start, looking along its main direction;
-// - a compact scene (a room, an object): from outside the points' bounds and above them, looking at
-//   their centre from behind the cameras' mean viewing direction; when the cameras are inside the
-//   bounds (a room), `max_height` is set just above the highest camera, so a ceiling does not hide the
-//   room. Throws Error when there are no points or no cameras.
+// - a compact scene (a room, an object): from outside the points' bounds and above them (30 degrees
+//   into a room, 35 onto an object), looking at their centre from behind the cameras' mean viewing
+//   direction; when the cameras are inside the bounds (a room), `max_height` is set a quarter of the
+//   room's height above the highest camera, so a ceiling does not hide the room.
+// Throws Error when there are no points or no cameras.
 struct Overview {
   Eigen::Vector3d eye, target;
   std::optional<double> max_height;
