@@ -101,9 +101,10 @@ pcl::PointCloud<pcl::PointXYZRGB> densityPointCloud(const NerfModel& model, cons
 }
 
 pcl::PointCloud<pcl::PointXYZRGB> depthPointCloud(const NerfModel& model, const std::vector<PosedCamera>& views,
-                                                  const ExportOptions& opt) {
+                                                  const ExportOptions& opt, std::vector<DepthPointQuality>* quality) {
   checkOptions(opt);
   pcl::PointCloud<pcl::PointXYZRGB> cloud;
+  if (quality) quality->clear();
   RenderOptions ro;
   ro.threads = opt.threads;
   ro.normals = false;
@@ -125,6 +126,8 @@ pcl::PointCloud<pcl::PointXYZRGB> depthPointCloud(const NerfModel& model, const 
         pt.g = uint8_t(std::clamp(c[1], 0.f, 1.f) * 255.f + 0.5f);
         pt.b = uint8_t(std::clamp(c[2], 0.f, 1.f) * 255.f + 0.5f);
         cloud.push_back(pt);
+        if (quality)
+          quality->push_back({r.opacity.at<float>(y, x), float(r.uncertainty.at<float>(y, x) / p_cam.norm())});
       }
   }
   return cloud;

@@ -10,6 +10,7 @@
 #include <pcl/conversions.h>
 #include <pcl/io/ply_io.h>
 #include <pcl/point_types.h>
+#include <Eigen/Eigenvalues>
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/camera.h"
@@ -205,6 +206,93 @@ void autoView(const PreviewScene& scene, const PreviewOptions& opts, Vector3d* e
   *eye = centre + dir * (radius / std::sin(half_fov) * 1.05);
 }
 
+namespace {
+
+// The q-th and (1-q)-th quantiles of v (q in [0, 0.5)).
+std::pair<double, double> quantileRange(std::vector<double> v, double q) {
+  const size_t a = size_t(q * double(v.size() - 1)), b = v.size() - 1 - a;
+  std::nth_element(v.begin(), v.begin() + long(a), v.end());
+  const double lo = v[a];
+  std::nth_element(v.begin(), v.begin() + long(b), v.end());
+  return {lo, v[b]};
+}
+
+}  // namespace
+
+Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std::vector<SE3>& cameras,
+                           const PreviewOptions& opts) {
+  if (points.empty() || cameras.empty()) fail("overview viewpoint: needs points and cameras");
+  if (!opts.up.allFinite() || opts.up.norm() < 1e-9) fail("preview up direction must be finite and non-zero");
+  const Vector3d up = opts.up.normalized();
+  // A horizontal basis (a, b) perpendicular to up; the main horizontal direction of the camera path.
+  Vector3d a = up.cross(std::abs(up.x()) < 0.9 ? Vector3d::UnitX() : Vector3d::UnitY()).normalized();
+  Vector3d b = up.cross(a);
+  Vector3d mean_c = Vector3d::Zero(), mean_fwd = Vector3d::Zero();
+  for (const auto& T : cameras) {
+    mean_c += T.translation() / double(cameras.size());
+    mean_fwd += T.rotationMatrix().col(2) / double(cameras.size());
+  }
+  Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  for (const auto& T : cameras) {
+    const Vector3d d = T.translation() - mean_c;
+    const Eigen::Vector2d h(d.dot(a), d.dot(b));
+    cov += h * h.transpose();
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(cov);
+  Vector3d dir = es.eigenvectors()(0, 1) * a + es.eigenvectors()(1, 1) * b;  // largest eigenvalue
+  const Vector3d start = cameras.front().translation(), end = cameras.back().translation();
+  if ((end - start).dot(dir) < 0) dir = -dir;
+  double plo = 1e300, phi = -1e300;
+  for (const auto& T : cameras) {
+    plo = std::min(plo, T.translation().dot(dir));
+    phi = std::max(phi, T.translation().dot(dir));
+  }
+  const double path = phi - plo;
+  // Robust bounds of the points in the (a, b, up) frame.
+  std::vector<double> pa, pb, pu;
+  for (const auto& p : points) {
+    const Vector3d q = p.cast<double>();
+    pa.push_back(q.dot(a)), pb.push_back(q.dot(b)), pu.push_back(q.dot(up));
+  }
+  const auto [alo, ahi] = quantileRange(pa, 0.02);
+  const auto [blo, bhi] = quantileRange(pb, 0.02);
+  const auto [ulo, uhi] = quantileRange(pu, 0.02);
+  const double scene = std::max(ahi - alo, bhi - blo);
+  const double half_fov = 0.5 * opts.fov_deg * M_PI / 180.0;
+  Overview ov;
+  // An open path, long against the scene, or shorter but with the cameras looking where they go.
+  const bool open = (end - start).dot(dir) > 0.5 * path;
+  const bool looking_ahead = mean_fwd.dot(dir) > 0.7;
+  ov.traversal = open && (path > 0.4 * scene || (looking_ahead && path > 0.2 * scene));
+  if (ov.traversal) {
+    // Looking 30 degrees down at a point ahead of the start, from behind and above it.
+    ov.target = start + 0.45 * path * dir;
+    ov.eye = ov.target - 0.8 * path * (std::cos(0.52) * dir - std::sin(0.52) * up);
+    return ov;
+  }
+  const double ca = mean_c.dot(a), cb = mean_c.dot(b), cu = mean_c.dot(up);
+  const bool inside = ca > alo && ca < ahi && cb > blo && cb < bhi && cu > ulo && cu < uhi;
+  double top = uhi;
+  if (inside) {
+    double highest = -1e300;
+    for (const auto& T : cameras) highest = std::max(highest, T.translation().dot(up));
+    ov.max_height = std::min(uhi, highest + 0.25 * (uhi - ulo));
+    top = *ov.max_height;
+  }
+  const Vector3d centre = 0.5 * (alo + ahi) * a + 0.5 * (blo + bhi) * b + 0.5 * (ulo + top) * up;
+  const double radius = std::max(0.05, 0.5 * Vector3d(ahi - alo, bhi - blo, top - ulo).norm());
+  // From behind the cameras' mean viewing direction, else from the side the cameras are on.
+  Vector3d side = -(mean_fwd - mean_fwd.dot(up) * up);
+  if (side.norm() < 0.3) side = mean_c - centre - (mean_c - centre).dot(up) * up;
+  if (side.norm() < 0.2 * radius) side = -0.8 * b + 0.6 * a;
+  side.normalize();
+  const double elevation = inside ? 0.52 : 0.61;  // 30 degrees into a room, 35 onto an object
+  ov.target = centre;
+  // The bounding sphere fits the view with room to spare: a little closer.
+  ov.eye = centre + (std::cos(elevation) * side + std::sin(elevation) * up) * (radius / std::sin(half_fov) * 0.85);
+  return ov;
+}
+
 cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
   if (opts.width < 16 || opts.height < 16 || opts.width > 8192 || opts.height > 8192)
     fail("preview size {}x{} invalid: width and height must be in 16..8192", opts.width, opts.height);
@@ -218,6 +306,7 @@ cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
     fail("preview frustum size {} must be finite and >= 0 (0: automatic)", opts.frustum_size);
   if ((opts.eye && !opts.eye->allFinite()) || (opts.target && !opts.target->allFinite()))
     fail("preview eye and target must be finite");
+  if (opts.max_height && !std::isfinite(*opts.max_height)) fail("preview max height must be finite");
   Vector3d eye, target;
   autoView(scene, opts, &eye, &target);  // also checks there is something to draw
   if (opts.eye && opts.target) {
@@ -245,6 +334,7 @@ cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
       }
     m.vertices.reserve(c.points.size());
     for (size_t i = 0; i < c.points.size(); ++i) {
+      if (opts.max_height && c.points[i].cast<double>().dot(up) > *opts.max_height) continue;
       cv::Vec3b col;
       if (!c.colors.empty()) {
         col = c.colors[i];
@@ -257,7 +347,7 @@ cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
       }
       m.vertices.push_back(vtx(c.points[i].cast<double>(), col));
     }
-    r.addMesh(m);
+    if (!m.vertices.empty()) r.addMesh(m);
   }
   Mesh lines;
   lines.primitive = Primitive::kLines;

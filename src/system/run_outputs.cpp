@@ -19,11 +19,19 @@
 #include "nerfslam/nerf/export.h"
 #include "nerfslam/nerf/renderer.h"
 #include "nerfslam/render/preview.h"
+#include "nerfslam/render/trajectory_plot.h"
+#include "nerfslam/system/flythrough.h"
 
 namespace nerfslam {
 namespace {
 
 namespace fs = std::filesystem;
+
+// Points of the NeRF cloud drawn in map_preview.png: where the render is opaque and its depth certain
+// (standard deviation along the ray at most this fraction of the distance, or, for a model whose
+// depth is still uncertain, the better half of the cloud).
+constexpr float kSurfaceOpacity = 0.95f;
+constexpr float kSurfaceUncertainty = 0.05f;
 
 void writePng(const fs::path& path, const cv::Mat& bgr) {
   AtomicOutput o(path);
@@ -144,6 +152,74 @@ Eigen::Vector3d upFromCameras(const std::vector<SE3>& poses) {
   for (const auto& T : poses) up -= T.rotation().toRotationMatrix().col(1);
   if (up.norm() < 1e-9) return Eigen::Vector3d::UnitZ();
   return up.normalized();
+}
+
+std::vector<SE3> posesOf(const Trajectory& traj) {
+  std::vector<SE3> poses;
+  for (const auto& e : traj) poses.push_back(e.pose);
+  return poses;
+}
+
+// map_preview.png: with a NeRF, its surface (`dense`) and the trajectory from a viewpoint that shows
+// the scene (render::overviewViewpoint); without, the sparse points, keyframes and trajectory from
+// the automatic view. Empty when there is nothing to draw.
+cv::Mat mapPreview(const SlamSystem& slam, const Trajectory& traj, const render::PreviewCloud& dense) {
+  render::PreviewScene scene;
+  render::PreviewOptions po;
+  const std::vector<SE3> poses = posesOf(traj);
+  po.up = upFromCameras(poses);
+  if (!poses.empty()) scene.trajectories.push_back({poses, {0, 0, 255}, "estimated trajectory"});
+  if (!dense.points.empty() && !poses.empty()) {
+    scene.clouds.push_back(dense);
+    const render::Overview ov = render::overviewViewpoint(dense.points, poses, po);
+    po.eye = ov.eye;
+    po.target = ov.target;
+    po.max_height = ov.max_height;
+    po.line_width = 3;
+    po.point_size = 3;
+    cv::Mat img = render::renderPreview(scene, po);
+    const std::string caption = dense.label + (ov.max_height ? ", cut away above the cameras" : "");
+    cv::putText(img, caption, {12, img.rows - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.55, cv::Scalar(235, 235, 235), 1,
+                cv::LINE_AA);
+    return img;
+  }
+  render::PreviewCloud sparse;
+  sparse.label = "sparse map";
+  for (const auto& p : slam.map().points()) sparse.points.push_back(p.position.cast<float>());
+  if (!sparse.points.empty()) scene.clouds.push_back(std::move(sparse));
+  for (const auto& kf : slam.map().keyframes()) scene.keyframes.push_back(kf.T_world_cam);
+  if (scene.clouds.empty() && scene.trajectories.empty()) return {};
+  return render::renderPreview(scene, po);
+}
+
+// trajectory.png: a top view with axes; with ground truth the Sim(3)-aligned estimate on it in metres
+// and the ATE in the title, otherwise the estimate alone in map units.
+render::TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& gt, const std::optional<Sim3>& align,
+                                      const nlohmann::json& rep) {
+  auto positions = [](const Trajectory& t, const Sim3& s) {
+    std::vector<Eigen::Vector3d> p;
+    for (const auto& e : t) p.push_back(s * e.pose.translation());
+    return p;
+  };
+  const cv::Vec3b est_color{180, 119, 31};
+  render::TrajectoryPlotOptions o;
+  std::vector<render::PlotSeries> series;
+  if (!gt.empty() && align) {
+    o.up = upFromCameras(posesOf(gt));
+    series.push_back({positions(gt, Sim3()), {150, 150, 150}, "ground truth"});
+    series.push_back({positions(traj, *align), est_color, "estimate"});
+    o.title = rep.contains("ate_rmse_m")
+                  ? fmt::format("ATE RMSE {:.3g} m = {:.3g} % of the {:.3g} m path ({} frames, Sim(3)-aligned)",
+                                rep["ate_rmse_m"].get<double>(), rep.value("ate_percent_of_path", 0.0),
+                                rep.value("path_length_m", 0.0), rep.value("ate_matched", 0))
+                  : "estimate against ground truth";
+  } else {
+    series.push_back({positions(traj, Sim3()), est_color, "estimate"});
+    o.up = upFromCameras(posesOf(traj));
+    o.unit = "map units";
+    o.title = "estimated trajectory (no ground truth: map units, the scale is unknown)";
+  }
+  return render::plotTrajectories(series, o);
 }
 
 }  // namespace
@@ -277,13 +353,19 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
     xo.threads = eo.threads;
     std::vector<nerf::PosedCamera> views;
     for (size_t k : spread(view_poses.size(), eo.cloud_views)) views.push_back({cam, view_poses[k]});
-    const auto cloud = nerf::depthPointCloud(model, views, xo);
+    std::vector<nerf::DepthPointQuality> quality;
+    const auto cloud = nerf::depthPointCloud(model, views, xo, &quality);
     nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
     nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");
     rep["nerf_cloud_points"] = cloud.size();
-    if (dense) {
-      dense->label = "NeRF cloud";
-      for (const auto& p : cloud.points) {
+    if (dense) {  // the surface: opaque, with a certain depth
+      dense->label = fmt::format("NeRF surface: depth renders of {} training views", views.size());
+      std::vector<double> uncertainty;
+      for (const auto& q : quality) uncertainty.push_back(q.relative_uncertainty);
+      const double max_uncertainty = std::max<double>(kSurfaceUncertainty, median(uncertainty));
+      for (size_t i = 0; i < cloud.size(); ++i) {
+        if (quality[i].opacity < kSurfaceOpacity || quality[i].relative_uncertainty > max_uncertainty) continue;
+        const auto& p = cloud.points[i];
         dense->points.emplace_back(p.x, p.y, p.z);
         dense->colors.emplace_back(p.b, p.g, p.r);
       }
@@ -302,40 +384,45 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
     rep["nerf_depth_median_abs_rel"] = median(depth_rel);
   else
     rep["nerf_depth_note"] = depth_why.empty() ? "no depth ground truth for the held-out frames" : depth_why;
+  if (eo.flythrough_frames > 0 && !traj.empty()) {
+    try {
+      nerf->withModel([&](nerf::NerfModel& model) {
+        FlythroughOptions fo;
+        fo.frames = eo.flythrough_frames;
+        fo.max_seconds = eo.flythrough_seconds;
+        fo.threads = eo.threads;
+        const FlythroughResult f = writeFlythrough(model, cam, traj, fo, out / "nerf");
+        rep["nerf_flythrough"] = {{"path", fs::relative(f.path, out).string()},
+                                  {"codec", f.codec},
+                                  {"frames", f.frames},
+                                  {"frames_requested", f.frames_requested},
+                                  {"width", f.size.width},
+                                  {"height", f.size.height},
+                                  {"fps", f.fps},
+                                  {"seconds", f.seconds}};
+      });
+    } catch (const std::exception& e) {
+      rep["nerf_flythrough_error"] = e.what();
+      spdlog::error("NeRF fly-through: {}", e.what());
+    }
+  }
 }
 
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& traj, const Trajectory& gt,
-                      const std::optional<Sim3>& align, const render::PreviewCloud& dense, const fs::path& out) {
+                      const std::optional<Sim3>& align, const render::PreviewCloud& dense, const nlohmann::json& rep,
+                      const fs::path& out) {
   try {
-    render::PreviewScene scene;
-    render::PreviewCloud sparse;
-    sparse.label = "sparse map";
-    for (const auto& p : slam.map().points()) sparse.points.push_back(p.position.cast<float>());
-    if (!sparse.points.empty()) scene.clouds.push_back(std::move(sparse));
-    if (!dense.points.empty()) scene.clouds.push_back(dense);
-    render::PreviewTrajectory est{{}, {0, 0, 255}, "estimate"};
-    for (const auto& e : traj) est.poses.push_back(e.pose);
-    for (const auto& kf : slam.map().keyframes()) scene.keyframes.push_back(kf.T_world_cam);
-    render::PreviewOptions po;
-    po.up = upFromCameras(est.poses);
-    if (!est.poses.empty()) scene.trajectories.push_back(est);
-    if (scene.clouds.empty() && scene.trajectories.empty()) return;
-    writePng(out / "map_preview.png", render::renderPreview(scene, po));
-
-    if (!gt.empty() && align) {
-      render::PreviewScene ts;
-      render::PreviewTrajectory g{{}, {0, 200, 0}, "ground truth"};
-      for (const auto& e : gt) g.poses.push_back(e.pose);
-      render::PreviewTrajectory a{{}, {0, 0, 255}, "estimate (Sim3-aligned)"};
-      for (const auto& e : traj) a.poses.push_back(align->transformPose(e.pose));
-      ts.trajectories = {g, a};
-      render::PreviewOptions to;
-      to.up = upFromCameras(g.poses);
-      writePng(out / "trajectory.png", render::renderPreview(ts, to));
-    }
+    const cv::Mat preview = mapPreview(slam, traj, dense);
+    if (!preview.empty()) writePng(out / "map_preview.png", preview);
   } catch (const std::exception& e) {
-    // Previews need OSMesa; a machine without it still gets every other output.
-    spdlog::warn("previews not written: {}", e.what());
+    // The map preview needs OSMesa; a machine without it still gets every other output.
+    spdlog::warn("map_preview.png not written: {}", e.what());
+  }
+  if (traj.size() < 2) return;
+  try {
+    writePng(out / "trajectory.png", trajectoryPlot(traj, gt, align, rep).image);
+  } catch (const std::exception& e) {
+    spdlog::warn("trajectory.png not written: {}", e.what());
   }
 }
 

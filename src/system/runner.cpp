@@ -446,7 +446,7 @@ void writeRunFiles(SlamSystem& slam, const Dataset& ds, const Trajectory& traj, 
       spdlog::error("NeRF outputs: {}", e.what());
     }
   }
-  writeRunPreviews(slam, traj, ge.reference, ge.alignment, dense, out);
+  writeRunPreviews(slam, traj, ge.reference, ge.alignment, dense, rep, out);
 }
 
 // The map folder (map_store.h), with the NeRF model: --save-map DIR, else OUT/map (not after
@@ -561,7 +561,7 @@ RunResult runSlam(const RunOptions& ro) {
   if (!global_ba) skipped.push_back("global_ba");
   slam.finish(global_ba);
   if (!trainNerfFinal(slam, sys)) skipped.push_back("final_nerf_training");
-  NerfEvalOptions eval_options;
+  NerfEvalOptions eval_options = sys.nerf.outputs;
   eval_options.model_only = stopRequests() >= 2;
   if (eval_options.model_only && slam.nerf()) skipped.push_back("nerf_renders_cloud_mesh");
 

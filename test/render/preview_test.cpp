@@ -227,5 +227,90 @@ TEST(PreviewCli, DrawsCloudTrajectoriesAndKeyframes) {
   }
 }
 
+// A box room (z up, 6 x 4 x 2.6 m) as cameras looking along +x reconstruct it: red floor, grey
+// walls but the one behind them (x = -3), blue ceiling, as points every 5 cm.
+PreviewCloud boxRoom() {
+  PreviewCloud c;
+  auto add = [&](const Eigen::Vector3f& p, const cv::Vec3b& col) {
+    c.points.push_back(p);
+    c.colors.push_back(col);
+  };
+  for (float x = -3; x <= 3; x += 0.05f)
+    for (float y = -2; y <= 2; y += 0.05f) {
+      add({x, y, 0.f}, {0, 0, 220});   // floor
+      add({x, y, 2.6f}, {220, 0, 0});  // ceiling
+    }
+  for (float z = 0; z <= 2.6f; z += 0.05f) {
+    for (float x = -3; x <= 3; x += 0.05f) add({x, -2.f, z}, {128, 128, 128}), add({x, 2.f, z}, {128, 128, 128});
+    for (float y = -2; y <= 2; y += 0.05f) add({3.f, y, z}, {128, 128, 128});
+  }
+  return c;
+}
+
+int countColor(const cv::Mat& img, const cv::Vec3b& c) {
+  cv::Mat mask;
+  cv::inRange(img, cv::Scalar(c[0], c[1], c[2]), cv::Scalar(c[0], c[1], c[2]), mask);
+  return cv::countNonZero(mask);
+}
+
+TEST(Preview, OverviewOfARoomLooksInFromAboveWithoutTheCeiling) {
+  const PreviewCloud room = boxRoom();
+  // A handheld walk at 1.5 m along the far wall, looking at it (+x).
+  std::vector<SE3> cams;
+  for (int i = 0; i < 20; ++i)
+    cams.push_back(lookAt({0.2 * std::sin(i * 0.3), -1.0 + 0.1 * i, 1.5}, {3.0, 0.3 * std::cos(i * 0.2), 1.2}));
+  PreviewOptions o;
+  o.width = 320;
+  o.height = 240;
+  o.legend = false;
+  const Overview ov = overviewViewpoint(room.points, cams, o);
+  EXPECT_FALSE(ov.traversal);
+  ASSERT_TRUE(ov.max_height.has_value());
+  EXPECT_GT(*ov.max_height, 1.5);
+  EXPECT_LT(*ov.max_height, 2.6);
+  // Outside the room, above it, behind the cameras (they look along +x), looking at its middle.
+  EXPECT_LT(ov.eye.x(), -3.0);
+  EXPECT_GT(ov.eye.z(), 2.6);
+  EXPECT_LT((ov.target - Eigen::Vector3d(0, 0, 0.9)).norm(), 0.6) << ov.target.transpose();
+  // Drawn from there: the floor shows, the ceiling does not.
+  PreviewScene s;
+  s.clouds.push_back(room);
+  o.eye = ov.eye;
+  o.target = ov.target;
+  o.max_height = ov.max_height;
+  const cv::Mat img = renderPreview(s, o);
+  if (const char* keep = std::getenv("NERFSLAM_KEEP_PREVIEW")) cv::imwrite(keep, img);
+  EXPECT_GT(countColor(img, {0, 0, 220}), img.total() / 8) << "floor pixels";
+  EXPECT_EQ(countColor(img, {220, 0, 0}), 0) << "ceiling pixels";
+  // The automatic view of the same cloud sees mostly the ceiling.
+  o.eye.reset();
+  o.target.reset();
+  o.max_height.reset();
+  const cv::Mat outside = renderPreview(s, o);
+  EXPECT_LT(countColor(outside, {0, 0, 220}), img.total() / 50);
+}
+
+TEST(Preview, OverviewOfADriveLooksAheadFromBehindTheStart) {
+  // A street along +y (z up): 80 m of road and house fronts either side, a car driving 40 m along it
+  // from y = 0.
+  PreviewCloud street;
+  for (float y = -10; y <= 70; y += 0.5f)
+    for (float x = -8; x <= 8; x += 0.5f) street.points.emplace_back(x, y, 0.f);
+  for (float y = -10; y <= 70; y += 0.5f)
+    for (float z = 0; z <= 8; z += 0.5f) street.points.emplace_back(-8.f, y, z), street.points.emplace_back(8.f, y, z);
+  std::vector<SE3> cams;
+  for (int i = 0; i <= 40; ++i) cams.push_back(lookAt({0.1 * std::sin(i * 0.1), double(i), 1.6}, {0, i + 10.0, 1.6}));
+  PreviewOptions o;
+  const Overview ov = overviewViewpoint(street.points, cams, o);
+  EXPECT_TRUE(ov.traversal);
+  EXPECT_FALSE(ov.max_height.has_value());
+  EXPECT_LT(ov.eye.y(), 0.0) << "behind the start";
+  EXPECT_GT(ov.eye.z(), 1.6 + 5.0) << "above the car";
+  EXPECT_GT(ov.target.y(), 5.0) << "ahead of the start";
+  EXPECT_LT(std::abs(ov.target.x()), 2.0);
+  EXPECT_THROW(overviewViewpoint({}, cams, o), Error);
+  EXPECT_THROW(overviewViewpoint(street.points, {}, o), Error);
+}
+
 }  // namespace
 }  // namespace nerfslam::render

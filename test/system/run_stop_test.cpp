@@ -163,6 +163,8 @@ TEST(RunStop, SignalsDuringTheFinalNerfTrainingShortenThenSkipIt) {
   EXPECT_EQ(skipped, (std::vector<std::string>{"final_nerf_training", "nerf_renders_cloud_mesh"})) << rep.dump(2);
   EXPECT_LT(rep.at("nerf_train_seconds").get<double>(), 250) << rep.dump(2);
   EXPECT_TRUE(fs::exists(out / "run" / "nerf" / "model.nerf"));
+  EXPECT_FALSE(fs::exists(out / "run" / "nerf" / "flythrough.mp4")) << "the fly-through is a NeRF render";
+  EXPECT_FALSE(rep.contains("nerf_flythrough")) << rep.dump(2);
   // The map folder holds the NeRF model too.
   EXPECT_NE(readAll(out / "run" / "map" / "map.json").find("\"nerf\""), std::string::npos);
   EXPECT_EQ(evaluates(data, out / "run"), 30);

@@ -39,8 +39,16 @@ struct PosedCamera {
   Camera camera;
   SE3 T_world_cam;
 };
+// What the render said about each point of depthPointCloud: its accumulated opacity and its depth
+// uncertainty (standard deviation of the ray's termination distance) relative to its distance. Surfaces
+// have both near 1 and near 0; floaters and the sky neither.
+struct DepthPointQuality {
+  float opacity = 0;
+  float relative_uncertainty = 0;
+};
 pcl::PointCloud<pcl::PointXYZRGB> depthPointCloud(const NerfModel& model, const std::vector<PosedCamera>& views,
-                                                  const ExportOptions& options = {});
+                                                  const ExportOptions& options = {},
+                                                  std::vector<DepthPointQuality>* quality = nullptr);
 
 pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& options = {});
 

@@ -49,6 +49,7 @@ struct PreviewOptions {
   double frustum_size = 0.0;  // metres; 0: 3% of the content's bounding-box diagonal
   cv::Vec3b background{40, 34, 30};
   bool legend = true;
+  std::optional<double> max_height;  // points higher than this along `up` are not drawn (a cut-away ceiling)
 };
 
 // Reads a PLY point cloud (ASCII or binary) with PCL; colours when the file has them.
@@ -64,6 +65,23 @@ cv::Vec3b parseColor(const std::string& name);
 // The automatic viewpoint: looks at the content's robust bounding box (1st-99th percentile of the
 // points, all trajectory positions) from above and aside so the box fits the view.
 void autoView(const PreviewScene& scene, const PreviewOptions& opts, Eigen::Vector3d* eye, Eigen::Vector3d* target);
+
+// A viewpoint from which a reconstructed surface (`points`) seen by cameras at `cameras` (T_world_cam,
+// in order) reads at a glance, with opts.up as up and opts.fov_deg:
+// - a traversal (an open camera path long against the scene, or a fifth of it with the cameras looking
+//   along it, e.g. a drive): from behind and above the path's start, looking along its main direction;
+// - a compact scene (a room, an object): from outside the points' bounds and above them (30 degrees
+//   into a room, 35 onto an object), looking at their centre from behind the cameras' mean viewing
+//   direction; when the cameras are inside the bounds (a room), `max_height` is set a quarter of the
+//   room's height above the highest camera, so a ceiling does not hide the room.
+// Throws Error when there are no points or no cameras.
+struct Overview {
+  Eigen::Vector3d eye, target;
+  std::optional<double> max_height;
+  bool traversal = false;
+};
+Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std::vector<SE3>& cameras,
+                           const PreviewOptions& opts);
 
 // Renders the preview (BGR 8-bit). Throws Error when there is nothing to draw or the size is
 // outside 16..8192.

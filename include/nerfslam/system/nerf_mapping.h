@@ -57,6 +57,38 @@ inline nerf::TrainOptions nerfMappingTrainDefaults() {
   return t;
 }
 
+// What `nerfslam run` renders from the trained map after the sequence (system/run_outputs.h).
+struct NerfEvalOptions {
+  int heldout_frames = 8;            // tracked frames the NeRF did not train on, rendered and compared (evenly spread)
+  int keyframe_frames = 4;           // training views rendered and compared
+  int cloud_views = 8;               // training views back-projected into nerf_cloud and map_preview.png
+  int flythrough_frames = 60;        // renders along the trajectory in nerf/flythrough.mp4 (0: none)
+  double flythrough_seconds = 30.0;  // time budget of the fly-through (fewer frames when slower)
+  // Set by the run, not options:
+  int threads = 2;
+  // Write nerf/model.nerf and the training statistics only: no renders, cloud, mesh or fly-through
+  // (a run stopped a second time, core/stop_signal.h).
+  bool model_only = false;
+
+  template <class V>
+  void visit(V& v) {
+    v("heldout_frames", heldout_frames,
+      "Tracked frames the NeRF never trained on, rendered beside the real ones (nerf/heldout/) and scored",
+      check::range(0, 100000));
+    v("keyframe_frames", keyframe_frames, "Training views rendered beside the real ones (nerf/keyframes/) and scored",
+      check::range(0, 100000));
+    v("cloud_views", cloud_views, "Training views whose depth renders make nerf_cloud.ply and map_preview.png",
+      check::range(0, 100000));
+    v("flythrough_frames", flythrough_frames,
+      "Frames of nerf/flythrough.mp4, renders along the estimated trajectory at the training size (0: none)",
+      check::range(0, 100000));
+    v("flythrough_seconds", flythrough_seconds,
+      "Time budget of the fly-through: when its first frame says the rest would take longer, fewer frames (at "
+      "least 2) cover the trajectory (0: no limit)",
+      check::range(0.0, 1e6));
+  }
+};
+
 struct NerfMappingOptions {
   bool enabled = true;
   int nice_increment = 19;
@@ -84,6 +116,7 @@ struct NerfMappingOptions {
   double final_train_seconds = 60.0;
   int final_threads = 0;                                  // threads for the final training (0: all hardware threads)
   nerf::TrainOptions train = nerfMappingTrainDefaults();  // the trainer; train.seed also seeds the field
+  NerfEvalOptions outputs;                                // what `run` renders from the map at the end
 
   template <class V>
   void visit(V& v) {
@@ -131,6 +164,9 @@ struct NerfMappingOptions {
     v("final_train_seconds", final_train_seconds,
       "Offline runs: seconds of NeRF training after the sequence, with the final poses", check::range(0.0, 1e6));
     v("final_threads", final_threads, "Threads of the final training (0: all hardware threads)", check::range(0, 256));
+    v("outputs", outputs,
+      "What `nerfslam run` renders from the map after the sequence: held-out and keyframe comparisons, the "
+      "cloud and map preview, the fly-through");
     v("train", train,
       "The NeRF trainer (nerf::TrainOptions with the system's defaults); train.seed also seeds the field, its "
       "re-fits and their distillation");

@@ -6,8 +6,9 @@
 //   mesh.ply                   marching-tetrahedra isosurface of the NeRF density
 //   nerf/heldout/<frame>.png   NeRF render | real image, for tracked frames the NeRF did not train on
 //   nerf/keyframes/<id>.png    the same for a few keyframes (training views)
-//   map_preview.png            sparse points, NeRF cloud, keyframe frustums and the trajectory
-//   trajectory.png             the estimate (Sim(3)-aligned) against ground truth, when present
+//   nerf/flythrough.mp4        renders along the estimated trajectory (or nerf/flythrough/NNNNNN.png)
+//   map_preview.png            the NeRF's surface and the trajectory (no NeRF: the sparse map)
+//   trajectory.png             top view with axes: the estimate, Sim(3)-aligned on the ground truth if any
 // and the report fields nerf_* (see README). Every file is written atomically.
 #include <filesystem>
 #include <optional>
@@ -23,28 +24,22 @@
 
 namespace nerfslam {
 
-struct NerfEvalOptions {
-  int heldout_frames = 8;   // tracked frames the NeRF did not train on, rendered and compared (evenly spread)
-  int keyframe_frames = 4;  // training views rendered and compared
-  int cloud_views = 8;      // training views back-projected into nerf_cloud
-  int threads = 2;
-  // Write nerf/model.nerf and the training statistics only: no renders, cloud or mesh (a run
-  // stopped a second time, core/stop_signal.h).
-  bool model_only = false;
-};
-
 // Renders the held-out frames and keyframes, measures PSNR (and, with `gt_alignment` and depth
 // ground truth from the dataset, the NeRF depth error), writes the model, clouds, mesh and
-// renders, and adds the nerf_* fields to `report`. `trajectory` is the final estimate
-// (SlamSystem::trajectory()). `dense`, when given, receives the NeRF cloud for the preview.
+// renders and the fly-through (nerf_flythrough, or nerf_flythrough_error), and adds the nerf_* fields
+// to `report`. `trajectory` is the final estimate (SlamSystem::trajectory()). `dense`, when given,
+// receives the NeRF's surface for the preview: the cloud's points where the render is opaque and its
+// depth certain.
 void writeNerfOutputs(SlamSystem& slam, const Dataset& dataset, const Trajectory& trajectory,
                       const std::optional<Sim3>& gt_alignment, const std::filesystem::path& out,
                       const NerfEvalOptions& options, nlohmann::json& report, render::PreviewCloud* dense = nullptr);
 
-// map_preview.png (sparse points, `dense` when not empty, keyframes, trajectory) and trajectory.png
-// when `ground_truth` is not empty (the estimate mapped onto it by `gt_alignment`).
+// map_preview.png: the NeRF surface `dense` (when not empty) and the trajectory from a viewpoint that
+// shows the scene, else the sparse points, keyframes and trajectory; and trajectory.png, a top view
+// with axes: with `ground_truth` and `gt_alignment` the aligned estimate on it in metres, titled with
+// the report's ate_rmse_m, ate_percent_of_path and path_length_m, else the estimate in map units.
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& trajectory, const Trajectory& ground_truth,
                       const std::optional<Sim3>& gt_alignment, const render::PreviewCloud& dense,
-                      const std::filesystem::path& out);
+                      const nlohmann::json& report, const std::filesystem::path& out);
 
 }  // namespace nerfslam
