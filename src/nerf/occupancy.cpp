@@ -79,7 +79,6 @@ void OccupancyGrid::rebuildBits() {
   std::fill(bits_.begin(), bits_.end(), 0);
   for (size_t i = 0; i < values_.size(); ++i)
     if (values_[i] > threshold_) bits_[i / 64] |= uint64_t(1) << (i % 64);
-  for (uint32_t i : pinned_) bits_[i / 64] |= uint64_t(1) << (i % 64);
   // Max-pool finer cascades into the overlapping centre of the next coarser one.
   constexpr int h = kRes / 2;
   for (int m = 1; m < cascades_; ++m) {
@@ -223,7 +222,9 @@ void OccupancyGrid::carveSegments(const std::vector<std::pair<Eigen::Vector3f, E
 }
 
 void OccupancyGrid::pinCells(const std::vector<Eigen::Vector3f>& points) {
-  pinned_.clear();
+  // The cells' values are raised just over the threshold (not only their bits set), so the values
+  // alone (a saved model) give the same occupancy.
+  std::vector<uint32_t> pinned;
   for (const Eigen::Vector3f& p : points) {
     if (!p.allFinite()) continue;
     const int mip = mipFromPos(p);
@@ -241,11 +242,11 @@ void OccupancyGrid::pinCells(const std::vector<Eigen::Vector3f>& points) {
         for (int dx = -1; dx <= 1; ++dx) {
           const int x = c[0] + dx, y = c[1] + dy, z = c[2] + dz;
           if (x < 0 || y < 0 || z < 0 || x >= kRes || y >= kRes || z >= kRes) continue;
-          pinned_.push_back(uint32_t(mip) * uint32_t(kCells) + cellIndex(x, y, z));
+          pinned.push_back(uint32_t(mip) * uint32_t(kCells) + cellIndex(x, y, z));
         }
   }
-  std::sort(pinned_.begin(), pinned_.end());
-  pinned_.erase(std::unique(pinned_.begin(), pinned_.end()), pinned_.end());
+  const float above = std::nextafter(threshold_, INFINITY);
+  for (uint32_t i : pinned) values_[i] = std::max(values_[i], above);
 }
 
 }  // namespace nerfslam::nerf

@@ -209,6 +209,11 @@ void Trainer::setThreads(int n) {
 
 Trainer::~Trainer() = default;
 
+void Trainer::setSamplesPerStep(int n) {
+  if (n < 256 || n > (1 << 22)) fail("NeRF training: samples per step must be in [256, 2^22], not {}", n);
+  opt_.samples_per_step = n;
+}
+
 size_t Trainer::addView(TrainingView view) {
   validateView(view, fmt::format("training view {}", views_.size()));
   images_.push_back(toImageData(view.image));

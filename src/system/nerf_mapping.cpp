@@ -314,8 +314,9 @@ void NerfMapping::stepOnce() {
     measurePsnr();
   }
   if (opt_.heldout_interval_s > 0 && now - last_heldout_time_ >= opt_.heldout_interval_s) {
-    last_heldout_time_ = now;
     measureHeldout();
+    // At most a tenth of the thread's time: the next measurement waits 9 times this one's cost.
+    last_heldout_time_ = now + 9.0 * std::max(0.0, nowSeconds() - now);
   }
 }
 
@@ -475,6 +476,10 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
   if (checkRefit()) refit();
   updateWeights();
   if (threads > 0) trainer_->setThreads(threads);
+  if (opt_.final_samples_per_step > 0) {
+    opt_.train.samples_per_step = opt_.final_samples_per_step;  // a box re-fit's new trainer keeps it
+    trainer_->setSamplesPerStep(opt_.final_samples_per_step);
+  }
   const auto t0 = Clock::now();
   int64_t done = 0;
   while (trainer_) {

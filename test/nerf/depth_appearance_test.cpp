@@ -105,13 +105,20 @@ TEST(Occupancy, KeepOccupiedPinsTheCellsAroundKnownSurfaces) {
   OccupancyGrid grid(1);
   OccupancyGrid::UpdateParams p;
   p.keep_occupied = {Eigen::Vector3f(0.25f, 0.5f, 0.75f), Eigen::Vector3f(7.f, 0.5f, 0.5f)};  // the second: outside
-  grid.update([](const float*, int n, float* sigma) { std::fill(sigma, sigma + n, 0.f); }, p);
+  // A uniform density sits at the threshold (the mean): no cell is above it but the pinned ones.
+  const auto uniform = [](const float*, int n, float* sigma) { std::fill(sigma, sigma + n, 1.f); };
+  grid.update(uniform, p);
   EXPECT_TRUE(grid.occupied(Eigen::Vector3f(0.25f, 0.5f, 0.75f), 0));
   EXPECT_TRUE(grid.occupied(Eigen::Vector3f(0.25f + 1.2f / 128, 0.5f, 0.75f), 0));  // a neighbour
   EXPECT_FALSE(grid.occupied(Eigen::Vector3f(0.25f + 3.f / 128, 0.5f, 0.75f), 0));
   EXPECT_NEAR(grid.occupiedFraction(), 27.0 / OccupancyGrid::kCells, 1e-9);
-  // The next update without them releases them.
-  grid.update([](const float*, int n, float* sigma) { std::fill(sigma, sigma + n, 0.f); }, {});
+  // Pinned through their values: a grid rebuilt from its values and threshold (a saved model) has
+  // them too.
+  OccupancyGrid copy(1);
+  copy.setValues(grid.values(), grid.threshold());
+  EXPECT_EQ(copy.occupiedFraction(), grid.occupiedFraction());
+  // The next update without them releases them (their values decay below the threshold).
+  grid.update(uniform, {});
   EXPECT_EQ(grid.occupiedFraction(), 0.0);
 }
 

@@ -93,6 +93,7 @@ NerfMappingOptions testOptions() {
   o.nice_increment = 0;
   o.log2_hashmap_size = 16;
   o.train.samples_per_step = 1 << 13;
+  o.final_samples_per_step = 0;   // trainFor keeps the small steps
   o.refit_check_steps = 1000000;  // refits only when the test asks
   o.min_view_distance = 0;        // every keyframe becomes a view
   return o;
@@ -161,6 +162,35 @@ TEST(NerfMapping, ViewsCarryTheirMapPointsAndFollowThem) {
       60));
   nm.stop();
   EXPECT_GT(nm.stats().depth_rays, 0);
+}
+
+// With held-out keyframes, the thread renders them every heldout_interval_s: the running held-out
+// PSNR rises as the map learns, and its history is kept.
+TEST(NerfMapping, MeasuresItsHeldOutPsnrWhileItTrains) {
+  Fixture fx(8);
+  NerfMappingOptions o = testOptions();
+  o.holdout_every = 2;
+  o.heldout_interval_s = 0.5;
+  o.heldout_downscale = 4.0;  // 40x30 renders
+  NerfMapping nm(*fx.map, fx.bus, o);
+  nm.start();
+  for (const auto& ev : fx.events) EXPECT_EQ(fx.bus.publish(ev), 1);
+  ASSERT_TRUE(waitFor([&] { return nm.stats().steps >= 300 && nm.stats().psnr_history.size() >= 4; }, 120))
+      << "steps " << nm.stats().steps << ", PSNR measurements " << nm.stats().psnr_history.size() << ", views "
+      << nm.stats().views << ", held out " << nm.stats().keyframes_held_out;
+  nm.stop();
+  const NerfMappingStats st = nm.stats();
+  EXPECT_EQ(st.keyframes_held_out, 4u);
+  EXPECT_EQ(st.views, 4);
+  const auto& h = st.psnr_history;
+  for (size_t i = 1; i < h.size(); ++i) {
+    EXPECT_GT(h[i].seconds, h[i - 1].seconds);
+    EXPECT_GE(h[i].steps, h[i - 1].steps);
+  }
+  std::printf("held-out PSNR %.2f dB at step %lld, %.2f dB at step %lld\n", h.front().psnr_heldout,
+              static_cast<long long>(h.front().steps), h.back().psnr_heldout, static_cast<long long>(h.back().steps));
+  EXPECT_GT(h.back().psnr_heldout, h.front().psnr_heldout + 1.0);
+  EXPECT_GT(st.psnr_heldout, 12.0);
 }
 
 TEST(NerfMapping, DivergenceIsRolledBackAndTrainingGoesOn) {

@@ -217,8 +217,9 @@ TEST(RunSystem, NerfRunLeavesASurfacePreviewAFlythroughAndATrajectoryPlot) {
   ASSERT_FALSE(dense_img.empty());
   ASSERT_FALSE(sparse_img.empty());
   const int dense_px = drawnPixels(dense_img), sparse_px = drawnPixels(sparse_img);
-  // Measured: 9 % of the picture after 4 s of training on a loaded machine.
-  EXPECT_GT(dense_px, int(dense_img.total() / 20)) << "the surface covers a twentieth of the picture at least";
+  // Measured: 9 % of the picture after 4 s of training on a loaded machine; 4.8 % once the sparse map
+  // carves free space (fog in front of the surfaces no longer counts as surface).
+  EXPECT_GT(dense_px, int(dense_img.total() / 40)) << "the surface covers a fortieth of the picture at least";
   EXPECT_GT(dense_px, 2 * sparse_px) << dense_px << " pixels against " << sparse_px;
   for (const auto* d : {&out, &sparse_out}) {
     const cv::Mat plot = cv::imread((*d / "trajectory.png").string());

@@ -111,7 +111,6 @@ class OccupancyGrid {
   int cascades_;
   float threshold_ = 0;
   std::vector<float> values_;
-  std::vector<uint32_t> pinned_;     // global cell indices kept occupied (UpdateParams::keep_occupied)
   std::vector<uint64_t> bits_;       // cascades * kCells bits
   std::vector<uint64_t> coarse_[2];  // block levels 1 and 2 (see occupiedBlock)
 };

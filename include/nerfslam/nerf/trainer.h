@@ -106,6 +106,8 @@ class Trainer {
   // Changes the number of training threads (e.g. more once tracking has finished). Deterministic
   // for a seed and the same sequence of thread counts.
   void setThreads(int n);
+  // Changes TrainOptions::samples_per_step from the next step on (256 .. 2^22).
+  void setSamplesPerStep(int n);
   const Camera& viewCamera(size_t i) const { return views_.at(i).camera; }
   const SE3& viewPose(size_t i) const { return views_.at(i).T_world_cam; }
   // View i as given (image rebuilt as 8-bit RGBA from the trainer's compact copy).
