@@ -332,7 +332,9 @@ void NerfMapping::keepHeldout(const KeyframeEvent& ev) {
   HeldOutView h;
   h.keyframe = ev.id;
   h.pose = ev.T_world_cam;
-  small.image.convertTo(h.rgb, CV_32F, 1.0 / 255.0);
+  cv::Mat rgb = small.image;
+  if (rgb.channels() == 4) cv::cvtColor(rgb, rgb, cv::COLOR_RGBA2RGB);  // renders are RGB
+  rgb.convertTo(h.rgb, CV_32F, 1.0 / 255.0);
   heldout_camera_ = small.camera;
   heldout_.push_back(std::move(h));
   if (int(heldout_.size()) > opt_.heldout_eval_views) heldout_.erase(heldout_.begin());
