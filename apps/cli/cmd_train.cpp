@@ -84,11 +84,9 @@ Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const 
   nerf::RenderOptions ro;
   ro.threads = threads;
   ro.normals = false;
-  std::vector<SE3> train_poses;
-  for (size_t i = 0; i < trainer.numViews(); ++i) train_poses.push_back(trainer.viewPose(i));
   for (size_t i = 0; i < count; ++i) {
     const auto r = nerf::renderView(model, views[i].camera, views[i].T_world_cam, ro);
-    const nerf::Appearance& app = trainer.viewAppearance(nerf::nearestView(train_poses, views[i].T_world_cam));
+    const nerf::Appearance app = trainer.appearanceNear(views[i].T_world_cam);
     cv::Mat gt = nerf::compositeOver(views[i], white);
     cv::Mat pred = cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0);
     e.psnr += eval::psnr(pred, gt, 1.0);

@@ -74,4 +74,9 @@ size_t nearestView(const std::vector<SE3>& poses, const SE3& pose) {
   return best;
 }
 
+Appearance appearanceNear(const std::vector<SE3>& poses, const std::vector<Appearance>& appearances, const SE3& pose) {
+  const size_t k = nearestView(poses, pose);
+  return k < appearances.size() && k < poses.size() ? appearances[k] : Appearance{};
+}
+
 }  // namespace nerfslam::nerf

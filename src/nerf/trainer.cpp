@@ -248,6 +248,12 @@ void Trainer::setViewAppearance(size_t i, const Appearance& a) {
   if (learnsAppearance(i)) appearance_[i] = a;
 }
 
+Appearance Trainer::appearanceNear(const SE3& pose) const {
+  std::vector<SE3> poses;
+  for (const auto& v : views_) poses.push_back(v.T_world_cam);
+  return nerf::appearanceNear(poses, appearance_, pose);
+}
+
 bool Trainer::learnsAppearance(size_t view) const { return opt_.appearance && !images_[view].has_alpha; }
 
 TrainingView Trainer::view(size_t i) const {

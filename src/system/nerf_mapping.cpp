@@ -23,6 +23,14 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double nowSeconds() { return std::chrono::duration<double>(Clock::now().time_since_epoch()).count(); }
 
+// A keyframe's image in colour: its colour frame, or its grey one replicated (empty without either).
+cv::Mat keyframeBgr(const Frame& frame) {
+  if (!frame.colour.empty() || frame.pyramid.empty()) return frame.colour;
+  cv::Mat bgr;
+  cv::cvtColor(frame.pyramid[0], bgr, cv::COLOR_GRAY2BGR);
+  return bgr;
+}
+
 }  // namespace
 
 NerfMapping::NerfMapping(Map& map, KeyframeBus& bus, NerfMappingOptions options)
@@ -103,11 +111,8 @@ void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
     ++stats_.keyframes_held_out;
     return;
   }
-  cv::Mat bgr = ev.frame->colour;
-  if (bgr.empty()) {
-    if (ev.frame->pyramid.empty()) return;
-    cv::cvtColor(ev.frame->pyramid[0], bgr, cv::COLOR_GRAY2BGR);
-  }
+  const cv::Mat bgr = keyframeBgr(*ev.frame);
+  if (bgr.empty()) return;
   const SE3 pose = map_.resolvePose(ev.id).value_or(ev.T_world_cam);
   View view;
   view.keyframe = ev.id;
@@ -321,11 +326,8 @@ void NerfMapping::stepOnce() {
 }
 
 void NerfMapping::keepHeldout(const KeyframeEvent& ev) {
-  cv::Mat bgr = ev.frame->colour;
-  if (bgr.empty()) {
-    if (ev.frame->pyramid.empty()) return;
-    cv::cvtColor(ev.frame->pyramid[0], bgr, cv::COLOR_GRAY2BGR);
-  }
+  const cv::Mat bgr = keyframeBgr(*ev.frame);
+  if (bgr.empty()) return;
   const nerf::TrainingView small =
       nerf::makeTrainingView(bgr, ev.frame->camera, ev.T_world_cam, opt_.downscale * opt_.heldout_downscale,
                              fmt::format("held-out keyframe {}", ev.id));
@@ -341,8 +343,6 @@ void NerfMapping::keepHeldout(const KeyframeEvent& ev) {
 }
 
 void NerfMapping::measureHeldout() {
-  std::vector<SE3> poses;
-  for (const View& v : views_) poses.push_back(v.pose);
   std::vector<double> psnr;
   for (HeldOutView& h : heldout_) {
     h.pose = map_.resolvePose(h.keyframe).value_or(h.pose);
@@ -351,8 +351,7 @@ void NerfMapping::measureHeldout() {
     ro.normals = false;
     ro.background = {0.0, 0.0, 0.0};
     const nerf::RenderResult r = nerf::renderView(*model_, heldout_camera_, h.pose, ro);
-    const nerf::Appearance app =
-        poses.empty() ? nerf::Appearance{} : trainer_->viewAppearance(nerf::nearestView(poses, h.pose));
+    const nerf::Appearance app = trainer_->appearanceNear(h.pose);
     psnr.push_back(eval::psnr(cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0), h.rgb, 1.0));
   }
   double mean = 0;

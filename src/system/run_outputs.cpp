@@ -291,10 +291,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   }
   const std::vector<SE3> view_poses = nerf->viewPoses();
   const std::vector<nerf::Appearance> view_app = nerf->viewAppearances();
-  const auto appearanceNear = [&](const SE3& pose) {
-    const size_t k = nerf::nearestView(view_poses, pose);
-    return k < view_app.size() ? view_app[k] : nerf::Appearance{};
-  };
+  const auto appearanceNear = [&](const SE3& pose) { return nerf::appearanceNear(view_poses, view_app, pose); };
   // The map points of the held-out frames' nearest training views (taken before the model lock).
   std::vector<std::vector<nerf::SurfacePoint>> held_points;
   const std::vector<size_t> held_pick = spread(heldout.size(), eo.heldout_frames);

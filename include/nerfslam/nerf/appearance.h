@@ -56,5 +56,8 @@ class AppearanceOptimizer {
 
 // The index of the pose in `poses` whose camera centre is nearest to `pose`'s (0 when empty).
 size_t nearestView(const std::vector<SE3>& poses, const SE3& pose);
+// The rule for a frame no view was trained on (every held-out figure uses it): the appearance of the
+// view (poses[i], appearances[i]) whose camera centre is nearest; identity without views.
+Appearance appearanceNear(const std::vector<SE3>& poses, const std::vector<Appearance>& appearances, const SE3& pose);
 
 }  // namespace nerfslam::nerf

@@ -122,6 +122,8 @@ class Trainer {
   // is off); setViewAppearance carries one over (e.g. across a box re-fit).
   const Appearance& viewAppearance(size_t i) const { return appearance_.at(i); }
   void setViewAppearance(size_t i, const Appearance& a);
+  // appearanceNear (appearance.h) over the training views: for a frame rendered at `pose`.
+  Appearance appearanceNear(const SE3& pose) const;
   // Relative probability of drawing each view's rays (one finite weight >= 0 per view, not all
   // zero); empty: uniform. Views added later get weight 1 until the next call.
   void setViewWeights(std::vector<double> weights);
