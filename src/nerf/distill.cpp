@@ -97,6 +97,7 @@ double distill(const NerfModel& from, NerfModel& to, const DistillOptions& optio
     to.field->backward(ws, d_sig.data(), d_rgb.data(), grads);
     to.field->step({&grads}, float(options.lr), 1);
   }
+  to.training_steps += uint64_t(options.steps);
   return loss;
 }
 

@@ -128,11 +128,19 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
   std::mt19937_64 rng(prm.seed);
   std::uniform_real_distribution<float> u01(0.f, 1.f);
 
-  // Cells to sample this round.
+  const int block = prm.uniform_cells < 0 ? prm.sweep_block : 1;
+  if (block < 1 || block > kRes || (block & (block - 1)) != 0)
+    fail("occupancy grid: sweep_block must be a power of two in [1, {}], got {}", kRes, block);
+
+  // Cells to sample this round (in a block sweep, each block's lowest corner cell stands for it).
   std::vector<uint32_t> cells;  // global index mip*kCells + cell
   if (prm.uniform_cells < 0) {
-    cells.resize(total);
-    for (size_t i = 0; i < total; ++i) cells[i] = uint32_t(i);
+    const int nb = kRes / block;
+    cells.reserve(size_t(cascades_) * size_t(nb) * size_t(nb) * size_t(nb));
+    for (int mip = 0; mip < cascades_; ++mip)
+      for (int z = 0; z < kRes; z += block)
+        for (int y = 0; y < kRes; y += block)
+          for (int x = 0; x < kRes; x += block) cells.push_back(uint32_t(mip) * uint32_t(kCells) + cellIndex(x, y, z));
   } else {
     std::uniform_int_distribution<uint32_t> pick(0, uint32_t(total - 1));
     cells.reserve(size_t(prm.uniform_cells + prm.occupied_cells));
@@ -176,16 +184,26 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
       const uint32_t c = g % kCells;
       const int x = int(c % kRes), y = int((c / kRes) % kRes), z = int(c / (kRes * kRes));
       const float s = std::ldexp(1.f, mip);
-      xyz[3 * k + 0] = ((x + u01(rng)) / kRes - 0.5f) * s + 0.5f;
-      xyz[3 * k + 1] = ((y + u01(rng)) / kRes - 0.5f) * s + 0.5f;
-      xyz[3 * k + 2] = ((z + u01(rng)) / kRes - 0.5f) * s + 0.5f;
+      xyz[3 * k + 0] = ((x + block * u01(rng)) / kRes - 0.5f) * s + 0.5f;
+      xyz[3 * k + 1] = ((y + block * u01(rng)) / kRes - 0.5f) * s + 0.5f;
+      xyz[3 * k + 2] = ((z + block * u01(rng)) / kRes - 0.5f) * s + 0.5f;
     }
     density(xyz.data(), int(n), sigma.data());
     for (size_t k = 0; k < n; ++k) {
       float v = sigma[k] * kMinStep;
       if (!std::isfinite(v)) v = 0.f;  // a diverged field must not poison the grid
-      float& f = fresh[cells[begin + k]];
-      f = std::max(f, v);
+      const uint32_t g = cells[begin + k];
+      if (block == 1) {
+        float& f = fresh[g];
+        f = std::max(f, v);
+        continue;
+      }
+      const uint32_t c = g % kCells;
+      const size_t base = size_t(g / kCells) * kCells;
+      const int x0 = int(c % kRes), y0 = int((c / kRes) % kRes), z0 = int(c / (kRes * kRes));
+      for (int z = z0; z < z0 + block; ++z)
+        for (int y = y0; y < y0 + block; ++y)
+          for (int x = x0; x < x0 + block; ++x) fresh[base + cellIndex(x, y, z)] = v;
     }
   }
   double sum = 0;

@@ -135,7 +135,11 @@ TEST(Map, ConcurrentInsertAndEraseKeepInvariants) {
   Map map;
   const KeyframeId base = map.addKeyframe(makeKf(500, 0));
   std::atomic<bool> stop{false};
+  std::atomic<bool> reading{false};
   std::thread writer([&] {
+    // Under a loaded CI machine the writer could finish before the reader first looked; start only
+    // once the reader is in its loop, so that the reads do overlap the writes.
+    while (!reading) std::this_thread::yield();
     std::mt19937 rng(4);
     for (int it = 0; it < 200; ++it) {
       const KeyframeId k = map.addKeyframe(makeKf(50, it + 1));
@@ -145,7 +149,8 @@ TEST(Map, ConcurrentInsertAndEraseKeepInvariants) {
     stop = true;
   });
   int checks = 0;
-  while (!stop) {
+  do {
+    reading = true;
     // Every point referenced by a keyframe exists and lists that keyframe at that keypoint.
     for (const Keyframe& kf : map.keyframes()) {
       for (size_t i = 0; i < kf.points.size(); ++i) {
@@ -155,7 +160,7 @@ TEST(Map, ConcurrentInsertAndEraseKeepInvariants) {
     }
     for (const MapPoint& p : map.points()) EXPECT_GE(p.observations.size(), 1u);
     ++checks;
-  }
+  } while (!stop);
   writer.join();
   // Final state is consistent.
   for (const Keyframe& kf : map.keyframes())

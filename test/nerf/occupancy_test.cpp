@@ -4,6 +4,7 @@
 
 #include <random>
 
+#include "nerfslam/core/error.h"
 #include "nerfslam/nerf/raymarch.h"
 
 namespace nerfslam::nerf {
@@ -47,6 +48,50 @@ TEST(Occupancy, MarksAnalyticSphereCells) {
   none.uniform_cells = 0;
   grid.update([](const float*, int n, float* s) { std::fill(s, s + n, 0.f); }, none);
   EXPECT_FLOAT_EQ(grid.values()[OccupancyGrid::cellIndex(64, 58, 70)], before * 0.95f);
+}
+
+// A block sweep (a fresh field's first update) asks for one density per block of cells and gives
+// every cell of the block that value: 1/64 of the queries for blocks of 4, the sphere's interior still
+// occupied and the far outside still empty; a block that is not a power of two is refused.
+TEST(Occupancy, BlockSweepSharesOneSamplePerBlock) {
+  OccupancyGrid grid(2);
+  OccupancyGrid::UpdateParams p;
+  p.sweep_block = 4;
+  int64_t queries = 0;
+  grid.update(
+      [&](const float* xyz, int n, float* s) {
+        queries += n;
+        sphereDensity(xyz, n, s);
+      },
+      p);
+  EXPECT_EQ(queries, 2 * OccupancyGrid::kCells / 64);
+  for (int bz = 0; bz < OccupancyGrid::kRes; bz += 4)
+    for (int by = 0; by < OccupancyGrid::kRes; by += 4)
+      for (int bx = 0; bx < OccupancyGrid::kRes; bx += 4) {
+        const float v = grid.values()[OccupancyGrid::cellIndex(bx, by, bz)];
+        for (int k = 1; k < 64; ++k)
+          ASSERT_EQ(grid.values()[OccupancyGrid::cellIndex(bx + k % 4, by + k / 4 % 4, bz + k / 16)], v)
+              << bx << " " << by << " " << bz;
+      }
+  // Blocks wholly inside the sphere (their centre more than a block's half-diagonal inside) are
+  // occupied; blocks wholly outside are not.
+  const float h = 4 * OccupancyGrid::cellSize(0) * 0.5f * std::sqrt(3.f);
+  int inside = 0, outside = 0;
+  for (int z = 2; z < OccupancyGrid::kRes; z += 4)
+    for (int y = 2; y < OccupancyGrid::kRes; y += 4)
+      for (int x = 2; x < OccupancyGrid::kRes; x += 4) {
+        const Eigen::Vector3f c =
+            grid.cellCenter(0, x, y, z) - Eigen::Vector3f::Constant(0.5f * OccupancyGrid::cellSize(0));
+        const float d = (c - kCentre).norm();
+        if (d < kRadius - h) inside += !grid.occupiedCell(0, x, y, z) ? 1000000 : 1;
+        if (d > kRadius + h) outside += grid.occupiedCell(0, x, y, z) ? 1000000 : 1;
+      }
+  EXPECT_GT(inside, 500);
+  EXPECT_LT(inside, 1000000) << "a block inside the sphere is empty";
+  EXPECT_GT(outside, 20000);
+  EXPECT_LT(outside, 1000000) << "a block outside the sphere is occupied";
+  p.sweep_block = 3;
+  EXPECT_THROW(grid.update(sphereDensity, p), Error);
 }
 
 TEST(Occupancy, CoarseCascadesIncludeFineOccupancy) {

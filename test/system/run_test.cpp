@@ -185,7 +185,7 @@ TEST(RunSystem, NerfRunLeavesASurfacePreviewAFlythroughAndATrajectoryPlot) {
   const auto synth = test::runCli("synth --scene room --frames 90 --size 320x240 --out " + seq.string());
   ASSERT_EQ(synth.exit_code, 0) << synth.output;
   test::writeText(dir / "config.yaml",
-                  "nerf:\n  downscale: 2.0\n  final_train_seconds: 4\n"
+                  "nerf:\n  downscale: 2.0\n  final_train_seconds: 6\n"
                   "  outputs: {flythrough_frames: 10, flythrough_seconds: 0, heldout_frames: 2, keyframe_frames: 1}\n");
   const auto out = dir / "nerf_run";
   const auto r = test::runCli("run --dataset " + seq.string() + " --config " + (dir / "config.yaml").string() +

@@ -23,7 +23,8 @@ struct DistillOptions {
 
 // Trains `to` (the student) to reproduce `from` (the teacher) inside from's unit cube; returns the
 // mean loss per point of the last step (0 when steps is 0). Deterministic for a seed. Only `to`'s
-// field changes (its occupancy grid is left as it is).
+// field changes (its occupancy grid is left as it is) and its training_steps, which count the
+// distillation steps: a trained field, whose first occupancy sweep must be at full resolution.
 double distill(const NerfModel& from, NerfModel& to, const DistillOptions& options);
 
 }  // namespace nerfslam::nerf

@@ -38,6 +38,9 @@ class OccupancyGrid {
 
   struct UpdateParams {
     int64_t uniform_cells = -1;  // cells sampled uniformly at random (with repeats); -1: every cell once
+    // With uniform_cells -1: cubes of sweep_block^3 cells share one sample (a random point in the
+    // cube), so the sweep costs 1/sweep_block^3 of the queries. A power of two in [1, kRes].
+    int sweep_block = 1;
     int64_t occupied_cells = 0;  // extra samples among the currently occupied cells
     float decay = 0.95f;
     float threshold_cap = 0.01f;  // threshold = min(threshold_cap, mean value of cascade 0)
