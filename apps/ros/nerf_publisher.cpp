@@ -162,22 +162,12 @@ void NerfPublisher::run() {
   }
 }
 
-namespace {
-// A new model is rendered only after its occupancy grid's second update (TrainOptions::
-// grid_update_interval steps, the interval NerfMapping trains with): before it nearly every cell is
-// still marked occupied and a render costs ~5x more samples (measured at 160x120: 4.2 M samples,
-// 218 per ray, at step 3; 0.6 M, 30 per ray, at step 17).
-bool modelReady(const NerfMapping& nerf) {
-  return nerf.stats().steps > nerf::TrainOptions{}.grid_update_interval && nerf.hasModel();
-}
-}  // namespace
-
 void NerfPublisher::publishView() {
   if (view_pub_.getNumSubscribers() == 0 && depth_pub_.getNumSubscribers() == 0) return;
   const auto src = source_();
   if (!src || !src->nerf) return;
   NerfMapping& nerf = *src->nerf;
-  if (!modelReady(nerf)) return;
+  if (!nerf.renderable()) return;
   const std::optional<ViewPose> pose = pose_();
   if (!pose || pose->generation != src->generation) return;
   const Camera cam = nerf.trainingCamera();
@@ -222,7 +212,7 @@ void NerfPublisher::publishCloud() {
   const auto src = source_();
   if (!src || !src->nerf) return;
   NerfMapping& nerf = *src->nerf;
-  if (!modelReady(nerf)) return;
+  if (!nerf.renderable()) return;
   nerf::ExportOptions xo;
   xo.threads = p_.nerf_render_threads;
   std::vector<nerf::PosedCamera> views;

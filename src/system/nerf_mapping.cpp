@@ -503,6 +503,8 @@ bool NerfMapping::hasModel() const {
   return model_ != nullptr && trainer_ != nullptr;
 }
 
+bool NerfMapping::renderable() const { return hasModel() && stats().steps > opt_.train.grid_update_interval; }
+
 std::vector<KeyframeId> NerfMapping::viewKeyframes() const {
   std::lock_guard<std::mutex> lock(model_mutex_);
   std::vector<KeyframeId> out;

@@ -222,14 +222,8 @@ render::TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& 
   return render::plotTrajectories(series, o);
 }
 
-}  // namespace
-
-void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& traj,
-                      const std::optional<Sim3>& gt_alignment, const fs::path& out, const NerfEvalOptions& eo,
-                      nlohmann::json& rep, render::PreviewCloud* dense) {
-  NerfMapping* nerf = slam.nerf();
-  if (!nerf) return;
-  const NerfMappingStats st = nerf->stats();
+// The NeRF thread's figures in report.json.
+void reportNerfStats(const NerfMappingStats& st, nlohmann::json& rep) {
   rep["nerf_steps"] = st.steps;
   rep["nerf_samples"] = st.samples;
   rep["nerf_rays"] = st.rays;
@@ -252,6 +246,93 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   rep["nerf_keyframes_dropped"] = st.keyframes_dropped;
   rep["nerf_keyframes_skipped"] = st.keyframes_skipped;
   rep["nerf_keyframes_held_out"] = st.keyframes_held_out;
+}
+
+// Median |s * depth - gt| / gt of a render against the dataset's depth image nearest `timestamp`
+// (s: the ground-truth alignment's scale); none without a depth image or valid pixels.
+std::optional<double> depthErrorAgainstGroundTruth(const std::map<double, fs::path>& depth_idx, double timestamp,
+                                                   const cv::Mat& depth, const Camera& cam, double s) {
+  const auto dp = nearestDepth(depth_idx, timestamp);
+  if (!dp) return std::nullopt;
+  cv::Mat gt16 = readImage(*dp, ImageMode::kUnchanged);
+  if (gt16.type() != CV_16UC1) throw fieldError(dp->string(), "image", "depth must be 16-bit single channel");
+  cv::Mat gt;
+  gt16.convertTo(gt, CV_32F, 1.0 / 5000.0);
+  cv::resize(gt, gt, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_NEAREST);
+  std::vector<double> rel;
+  for (int y = 0; y < gt.rows; ++y)
+    for (int x = 0; x < gt.cols; ++x) {
+      const float g = gt.at<float>(y, x), d = depth.at<float>(y, x);
+      if (g > 0 && d > 0) rel.push_back(std::abs(s * d - g) / g);
+    }
+  if (rel.empty()) return std::nullopt;
+  return median(rel);
+}
+
+// nerf_cloud.ply/.pcd from depth renders of cloud_views training views, mesh.ply, and the surface
+// drawn in map_preview.png (`dense`: opaque points whose depth is certain).
+void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vector<SE3>& view_poses,
+                       const NerfEvalOptions& eo, const fs::path& out, nlohmann::json& rep,
+                       render::PreviewCloud* dense) {
+  nerf::ExportOptions xo;
+  xo.threads = eo.threads;
+  std::vector<nerf::PosedCamera> views;
+  for (size_t k : spread(view_poses.size(), eo.cloud_views)) views.push_back({cam, view_poses[k]});
+  std::vector<nerf::DepthPointQuality> quality;
+  const auto cloud = nerf::depthPointCloud(model, views, xo, &quality);
+  nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
+  nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");
+  rep["nerf_cloud_points"] = cloud.size();
+  if (dense) {  // the surface: opaque, with a certain depth
+    dense->label = fmt::format("NeRF surface: depth renders of {} training views", views.size());
+    std::vector<double> uncertainty;
+    for (const auto& q : quality) uncertainty.push_back(q.relative_uncertainty);
+    const double max_uncertainty = std::max<double>(kSurfaceUncertainty, median(uncertainty));
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      if (quality[i].opacity < kSurfaceOpacity || quality[i].relative_uncertainty > max_uncertainty) continue;
+      const auto& p = cloud.points[i];
+      dense->points.emplace_back(p.x, p.y, p.z);
+      dense->colors.emplace_back(p.b, p.g, p.r);
+    }
+  }
+  const auto mesh = nerf::extractMesh(model, xo);
+  nerf::saveMesh(mesh, out / "mesh.ply");
+  rep["mesh_triangles"] = mesh.polygons.size();
+}
+
+// nerf/flythrough.mp4 and its entry in report.json (an error there is reported, not fatal).
+void writeFlythroughOutput(NerfMapping& nerf, const Camera& cam, const Trajectory& traj, const NerfEvalOptions& eo,
+                           const fs::path& out, nlohmann::json& rep) {
+  try {
+    nerf.withModel([&](nerf::NerfModel& model) {
+      FlythroughOptions fo;
+      fo.frames = eo.flythrough_frames;
+      fo.max_seconds = eo.flythrough_seconds;
+      fo.threads = eo.threads;
+      const FlythroughResult f = writeFlythrough(model, cam, traj, fo, out / "nerf");
+      rep["nerf_flythrough"] = {{"path", fs::relative(f.path, out).string()},
+                                {"codec", f.codec},
+                                {"frames", f.frames},
+                                {"frames_requested", f.frames_requested},
+                                {"width", f.size.width},
+                                {"height", f.size.height},
+                                {"fps", f.fps},
+                                {"seconds", f.seconds}};
+    });
+  } catch (const std::exception& e) {
+    rep["nerf_flythrough_error"] = e.what();
+    spdlog::error("NeRF fly-through: {}", e.what());
+  }
+}
+
+}  // namespace
+
+void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& traj,
+                      const std::optional<Sim3>& gt_alignment, const fs::path& out, const NerfEvalOptions& eo,
+                      nlohmann::json& rep, render::PreviewCloud* dense) {
+  NerfMapping* nerf = slam.nerf();
+  if (!nerf) return;
+  reportNerfStats(nerf->stats(), rep);
   if (!nerf->hasModel()) {
     rep["nerf_error"] = "no NeRF model: the map never initialised";
     return;
@@ -312,24 +393,9 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
       writePng(out / "nerf" / "heldout" / fmt::format("{:06d}.png", r.index), e.side_by_side);
       nlohmann::json j{{"frame", r.index}, {"psnr", e.psnr}, {"ssim", e.ssim}};
       if (gt_alignment && !depth_idx.empty()) {
-        if (auto dp = nearestDepth(depth_idx, r.timestamp)) {
-          cv::Mat gt16 = readImage(*dp, ImageMode::kUnchanged);
-          if (gt16.type() != CV_16UC1) throw fieldError(dp->string(), "image", "depth must be 16-bit single channel");
-          cv::Mat gt;
-          gt16.convertTo(gt, CV_32F, 1.0 / 5000.0);
-          cv::resize(gt, gt, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_NEAREST);
-          std::vector<double> rel;
-          const double s = gt_alignment->scale();
-          for (int y = 0; y < gt.rows; ++y)
-            for (int x = 0; x < gt.cols; ++x) {
-              const float g = gt.at<float>(y, x), d = e.depth.at<float>(y, x);
-              if (g > 0 && d > 0) rel.push_back(std::abs(s * d - g) / g);
-            }
-          if (!rel.empty()) {
-            const double m = median(rel);
-            depth_rel.push_back(m);
-            j["depth_median_abs_rel"] = m;
-          }
+        if (const auto m = depthErrorAgainstGroundTruth(depth_idx, r.timestamp, e.depth, cam, gt_alignment->scale())) {
+          depth_rel.push_back(*m);
+          j["depth_median_abs_rel"] = *m;
         }
       }
       held_list.push_back(j);
@@ -345,31 +411,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
       writePng(out / "nerf" / "keyframes" / fmt::format("{:06d}.png", kf_ids[j]), e.side_by_side);
     }
     nerf::saveModel(model, out / "nerf" / "model.nerf");
-    // Dense cloud from keyframe depth renders, and the mesh.
-    nerf::ExportOptions xo;
-    xo.threads = eo.threads;
-    std::vector<nerf::PosedCamera> views;
-    for (size_t k : spread(view_poses.size(), eo.cloud_views)) views.push_back({cam, view_poses[k]});
-    std::vector<nerf::DepthPointQuality> quality;
-    const auto cloud = nerf::depthPointCloud(model, views, xo, &quality);
-    nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
-    nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");
-    rep["nerf_cloud_points"] = cloud.size();
-    if (dense) {  // the surface: opaque, with a certain depth
-      dense->label = fmt::format("NeRF surface: depth renders of {} training views", views.size());
-      std::vector<double> uncertainty;
-      for (const auto& q : quality) uncertainty.push_back(q.relative_uncertainty);
-      const double max_uncertainty = std::max<double>(kSurfaceUncertainty, median(uncertainty));
-      for (size_t i = 0; i < cloud.size(); ++i) {
-        if (quality[i].opacity < kSurfaceOpacity || quality[i].relative_uncertainty > max_uncertainty) continue;
-        const auto& p = cloud.points[i];
-        dense->points.emplace_back(p.x, p.y, p.z);
-        dense->colors.emplace_back(p.b, p.g, p.r);
-      }
-    }
-    const auto mesh = nerf::extractMesh(model, xo);
-    nerf::saveMesh(mesh, out / "mesh.ply");
-    rep["mesh_triangles"] = mesh.polygons.size();
+    writeCloudAndMesh(model, cam, view_poses, eo, out, rep, dense);
   });
   rep["nerf_psnr_heldout"] = mean(psnr_held);
   rep["nerf_psnr_heldout_frames"] = psnr_held.size();
@@ -381,28 +423,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
     rep["nerf_depth_median_abs_rel"] = median(depth_rel);
   else
     rep["nerf_depth_note"] = depth_why.empty() ? "no depth ground truth for the held-out frames" : depth_why;
-  if (eo.flythrough_frames > 0 && !traj.empty()) {
-    try {
-      nerf->withModel([&](nerf::NerfModel& model) {
-        FlythroughOptions fo;
-        fo.frames = eo.flythrough_frames;
-        fo.max_seconds = eo.flythrough_seconds;
-        fo.threads = eo.threads;
-        const FlythroughResult f = writeFlythrough(model, cam, traj, fo, out / "nerf");
-        rep["nerf_flythrough"] = {{"path", fs::relative(f.path, out).string()},
-                                  {"codec", f.codec},
-                                  {"frames", f.frames},
-                                  {"frames_requested", f.frames_requested},
-                                  {"width", f.size.width},
-                                  {"height", f.size.height},
-                                  {"fps", f.fps},
-                                  {"seconds", f.seconds}};
-      });
-    } catch (const std::exception& e) {
-      rep["nerf_flythrough_error"] = e.what();
-      spdlog::error("NeRF fly-through: {}", e.what());
-    }
-  }
+  if (eo.flythrough_frames > 0 && !traj.empty()) writeFlythroughOutput(*nerf, cam, traj, eo, out, rep);
 }
 
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& traj, const Trajectory& gt,

@@ -264,6 +264,14 @@ TEST(NerfMapping, FollowsPosesThatBundleAdjustmentChanges) {
   nm.trainFor(0, 1);
   const SE3 expect = fx.map->keyframe(1)->T_world_cam * T_parent_kf;
   EXPECT_LT((nm.viewPoses()[3].translation() - expect.translation()).norm(), 1e-9);
+  // Worth rendering (the ROS publisher's test) only after the grid's second update.
+  const int interval = testOptions().train.grid_update_interval;
+  EXPECT_FALSE(nm.renderable());
+  nm.trainFor(0, interval - 2);
+  EXPECT_EQ(nm.stats().steps, interval);
+  EXPECT_FALSE(nm.renderable());
+  nm.trainFor(0, 1);
+  EXPECT_TRUE(nm.renderable());
 }
 
 TEST(NerfMapping, NeverBlocksThePublisherAndCountsDrops) {

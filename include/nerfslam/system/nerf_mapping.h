@@ -235,6 +235,10 @@ class NerfMapping {
 
   NerfMappingStats stats() const;
   bool hasModel() const;
+  // A model worth rendering: its occupancy grid has had its second update (train.grid_update_interval
+  // steps after the first). Before it nearly every cell is still marked occupied and a render costs
+  // ~5x the samples (measured at 160x120: 218 samples per ray at step 3, 30 at step 17).
+  bool renderable() const;
   // Keyframe ids of the training views, in view order.
   std::vector<KeyframeId> viewKeyframes() const;
   // Frame ids (Frame::id, the runner's frame index) of the training views' images.
