@@ -1,6 +1,7 @@
 #include "nerfslam/nerf/composite.h"
 
 #include <cmath>
+#include <vector>
 
 namespace nerfslam::nerf {
 
@@ -100,6 +101,48 @@ float lineOfSightLoss(int n, const float* sigma, const float* dt, const float* t
     const float T_next = T * (1.f - alpha);
     prefix += T * alpha * rho;
     d_sigma[i] += scale * dt[i] * (T_next * rho - (loss - prefix));
+    T = T_next;
+  }
+  return loss;
+}
+
+float distortionLoss(const float* sigma, const float* dt, const float* t, const CompositeResult& fwd, float scale,
+                     float* d_sigma) {
+  const int used = fwd.used;
+  if (used == 0) return 0.f;
+  // Weights, then g_i = dL/dw_i = 2 sum_j w_j |t_i - t_j| + 2/3 w_i dt_i from prefix sums of w and
+  // w t (the t_i are increasing): sum_j w_j |t_i - t_j| = t_i W_<i - S_<i + (S_>i - t_i W_>i).
+  thread_local std::vector<float> w, g;
+  w.resize(size_t(used));
+  g.resize(size_t(used));
+  float T = 1.f, W = 0.f, S = 0.f;
+  for (int i = 0; i < used; ++i) {
+    const float alpha = 1.f - std::exp(-sigma[i] * dt[i]);
+    w[size_t(i)] = T * alpha;
+    W += w[size_t(i)];
+    S += w[size_t(i)] * t[i];
+    T *= 1.f - alpha;
+  }
+  float loss = 0.f, W_before = 0.f, S_before = 0.f;
+  for (int i = 0; i < used; ++i) {
+    const float wi = w[size_t(i)];
+    const float W_after = W - W_before - wi, S_after = S - S_before - wi * t[i];
+    const float spread = t[i] * W_before - S_before + S_after - t[i] * W_after;
+    loss += wi * spread + wi * wi * dt[i] / 3.f;
+    g[size_t(i)] = 2.f * spread + 2.f / 3.f * wi * dt[i];
+    W_before += wi;
+    S_before += wi * t[i];
+  }
+  // dL/dsigma_i = dt_i (T_{i+1} g_i - sum_{k>i} w_k g_k), as in lineOfSightLoss (no T_end term).
+  float total = 0.f;
+  for (int i = 0; i < used; ++i) total += w[size_t(i)] * g[size_t(i)];
+  T = 1.f;
+  float prefix = 0.f;
+  for (int i = 0; i < used; ++i) {
+    const float alpha = 1.f - std::exp(-sigma[i] * dt[i]);
+    const float T_next = T * (1.f - alpha);
+    prefix += w[size_t(i)] * g[size_t(i)];
+    d_sigma[i] += scale * dt[i] * (T_next * g[size_t(i)] - (total - prefix));
     T = T_next;
   }
   return loss;

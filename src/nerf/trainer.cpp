@@ -48,85 +48,6 @@ void parallelRun(int n, const std::function<void(int)>& fn) {
     if (e) std::rethrow_exception(e);
 }
 
-void validateView(const TrainingView& view, const std::string& source) {
-  view.camera.validate(source);
-  const cv::Mat& im = view.image;
-  if (im.empty()) throw fieldError(source, "image", "is empty");
-  const int depth = im.depth(), ch = im.channels();
-  if (!((depth == CV_8U || depth == CV_32F) && (ch == 3 || ch == 4)))
-    throw fieldError(source, "image", "must be 8-bit or float RGB/RGBA");
-  if (im.cols != view.camera.width || im.rows != view.camera.height)
-    throw fieldError(
-        source, "image",
-        fmt::format("is {}x{} but the camera is {}x{}", im.cols, im.rows, view.camera.width, view.camera.height));
-  if (!view.T_world_cam.matrix().allFinite()) throw fieldError(source, "T_world_cam", "is not finite");
-}
-
-TrainingView makeTrainingView(const cv::Mat& image, const Camera& camera, const SE3& T_world_cam, double downscale,
-                              const std::string& source) {
-  if (image.empty()) throw fieldError(source, "image", "is empty");
-  if (image.depth() != CV_8U || (image.channels() != 3 && image.channels() != 4))
-    throw fieldError(source, "image", "must be 8-bit BGR or BGRA");
-  if (!(downscale >= 1.0) || !std::isfinite(downscale)) throw fieldError(source, "downscale", "must be >= 1");
-  if (image.cols != camera.width || image.rows != camera.height)
-    throw fieldError(
-        source, "image",
-        fmt::format("is {}x{} but the camera is {}x{}", image.cols, image.rows, camera.width, camera.height));
-  TrainingView v;
-  v.T_world_cam = T_world_cam;
-  cv::Mat rgb;
-  cv::cvtColor(image, rgb, image.channels() == 4 ? cv::COLOR_BGRA2RGBA : cv::COLOR_BGR2RGB);
-  if (downscale == 1.0) {
-    v.image = rgb;
-    v.camera = camera;
-  } else {
-    const int w = std::max(1, int(std::lround(camera.width / downscale)));
-    const int h = std::max(1, int(std::lround(camera.height / downscale)));
-    v.camera = camera.scaled(double(w) / camera.width);
-    v.camera.width = w;
-    v.camera.height = h;
-    cv::Mat f;
-    rgb.convertTo(f, CV_32F, 1.0 / 255.0);
-    if (f.channels() == 4) {
-      std::vector<cv::Mat> ch;
-      cv::split(f, ch);
-      for (int c = 0; c < 3; ++c) ch[size_t(c)] = ch[size_t(c)].mul(ch[3]);
-      cv::merge(ch, f);
-    }
-    cv::Mat small;
-    cv::resize(f, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
-    if (small.channels() == 4) {
-      std::vector<cv::Mat> ch;
-      cv::split(small, ch);
-      cv::Mat inv;
-      cv::divide(1.0, cv::max(ch[3], 1e-6), inv);
-      for (int c = 0; c < 3; ++c) ch[size_t(c)] = cv::min(ch[size_t(c)].mul(inv), 1.0);
-      cv::merge(ch, small);
-    }
-    // Back to 8 bits (rounded): the trainer keeps 8-bit pixels anyway, and a float copy per view
-    // would be 4x the memory (lego at 400x400: 2.6 MB instead of 0.64 MB per view).
-    small.convertTo(v.image, CV_8U, 255.0);
-  }
-  validateView(v, source);
-  return v;
-}
-
-cv::Mat compositeOver(const TrainingView& view, const float bg[3]) {
-  cv::Mat f;
-  view.image.convertTo(f, CV_32F, view.image.depth() == CV_8U ? 1.0 / 255.0 : 1.0);
-  cv::Mat out(f.size(), CV_32FC3);
-  const int ch = f.channels();
-  for (int y = 0; y < f.rows; ++y) {
-    const float* s = f.ptr<float>(y);
-    auto* d = out.ptr<cv::Vec3f>(y);
-    for (int x = 0; x < f.cols; ++x) {
-      const float a = ch == 4 ? s[4 * x + 3] : 1.f;
-      for (int c = 0; c < 3; ++c) d[x][c] = s[ch * x + c] * a + bg[c] * (1.f - a);
-    }
-  }
-  return out;
-}
-
 struct Trainer::ThreadState {
   std::mt19937_64 rng;
   RadianceField::Workspace ws;
@@ -146,36 +67,12 @@ struct Trainer::ThreadState {
   };
   std::vector<RayInfo> rays;              // of the current chunk (offsets into the chunk's buffers)
   int64_t num_rays = 0, num_samples = 0;  // of the step
-  double loss = 0, depth_loss = 0;
+  double loss = 0, depth_loss = 0, distortion_loss = 0;
   int64_t composited = 0, depth_rays = 0;
   std::vector<double> view_loss;  // per view: summed loss of this step's rays
   std::vector<int> view_rays;
   StageTimes times;
 };
-
-Trainer::ImageData Trainer::toImageData(const cv::Mat& im) {
-  ImageData d;
-  d.width = im.cols;
-  d.height = im.rows;
-  cv::Mat u8;
-  if (im.depth() == CV_32F)
-    im.convertTo(u8, CV_8U, 255.0);
-  else
-    u8 = im;
-  if (u8.channels() == 3) {
-    cv::Mat a(u8.size(), CV_8UC1, cv::Scalar(255));
-    cv::Mat out;
-    cv::merge(std::vector<cv::Mat>{u8, a}, out);
-    u8 = out;
-  }
-  d.rgba.resize(size_t(d.width) * d.height * 4);
-  for (int y = 0; y < d.height; ++y)
-    std::memcpy(d.rgba.data() + size_t(y) * d.width * 4, u8.ptr(y), size_t(d.width) * 4);
-  // Alpha that is 255 everywhere (e.g. a view rebuilt by view()) is no alpha: an opaque image.
-  d.has_alpha = false;
-  for (size_t i = 3; i < d.rgba.size() && !d.has_alpha; i += 4) d.has_alpha = d.rgba[i] != 255;
-  return d;
-}
 
 Trainer::Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options)
     : model_(model), appearance_opt_(model.field->config().adam), opt_(options) {
@@ -212,76 +109,6 @@ Trainer::~Trainer() = default;
 void Trainer::setSamplesPerStep(int n) {
   if (n < 256 || n > (1 << 22)) fail("NeRF training: samples per step must be in [256, 2^22], not {}", n);
   opt_.samples_per_step = n;
-}
-
-size_t Trainer::addView(TrainingView view) {
-  validateView(view, fmt::format("training view {}", views_.size()));
-  images_.push_back(toImageData(view.image));
-  view.image.release();  // keep only the compact copy
-  appearance_.emplace_back();
-  std::vector<SurfacePoint> points = std::move(view.points);
-  if (opt_.learned_background && !images_.back().has_alpha && !model_.background) {
-    model_.background =
-        std::make_unique<Background>(opt_.background_rows, view.T_world_cam.rotationMatrix().cast<float>());
-    snap_background_.clear();  // the next snapshot takes it
-  }
-  views_.push_back(std::move(view));
-  view_loss_.push_back(-1.0);
-  if (!view_weights_.empty()) view_weights_.push_back(1.0);
-  setViewPoints(views_.size() - 1, std::move(points));
-  return views_.size() - 1;
-}
-
-void Trainer::setViewPoints(size_t i, std::vector<SurfacePoint> points) {
-  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
-  points.erase(std::remove_if(points.begin(), points.end(),
-                              [](const SurfacePoint& p) {
-                                return !p.position.allFinite() || !(p.weight > 0.f && p.weight <= 1.f);
-                              }),
-               points.end());
-  views_[i].points = std::move(points);
-}
-
-void Trainer::setViewAppearance(size_t i, const Appearance& a) {
-  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
-  if (!a.finite()) throw fieldError(fmt::format("training view {}", i), "appearance", "is not finite");
-  if (learnsAppearance(i)) appearance_[i] = a;
-}
-
-Appearance Trainer::appearanceNear(const SE3& pose) const {
-  std::vector<SE3> poses;
-  for (const auto& v : views_) poses.push_back(v.T_world_cam);
-  return nerf::appearanceNear(poses, appearance_, pose);
-}
-
-bool Trainer::learnsAppearance(size_t view) const { return opt_.appearance && !images_[view].has_alpha; }
-
-TrainingView Trainer::view(size_t i) const {
-  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
-  TrainingView v = views_[i];
-  const ImageData& d = images_[i];
-  v.image = cv::Mat(d.height, d.width, CV_8UC4, const_cast<uint8_t*>(d.rgba.data())).clone();
-  return v;
-}
-
-void Trainer::setViewPose(size_t i, const SE3& T_world_cam) {
-  if (i >= views_.size()) fail("NeRF training: no view {} (have {})", i, views_.size());
-  if (!T_world_cam.matrix().allFinite())
-    throw fieldError(fmt::format("training view {}", i), "T_world_cam", "is not finite");
-  views_[i].T_world_cam = T_world_cam;
-}
-
-void Trainer::setViewWeights(std::vector<double> w) {
-  if (!w.empty()) {
-    if (w.size() != views_.size()) fail("NeRF training: {} view weights for {} views", w.size(), views_.size());
-    double sum = 0;
-    for (double x : w) {
-      if (!(x >= 0) || !std::isfinite(x)) fail("NeRF training: view weights must be finite and >= 0");
-      sum += x;
-    }
-    if (!(sum > 0)) fail("NeRF training: view weights are all zero");
-  }
-  view_weights_ = std::move(w);
 }
 
 double Trainer::learningRate() const {
@@ -403,6 +230,7 @@ struct Trainer::StepPlan {
   float delta = 0;     // Huber delta
   bool depth = false;  // draw depth-supervised rays through views' surface points
   float depth_fraction = 0, depth_weight = 0;
+  float distortion_weight = 0;  // TrainOptions::distortion_weight
 };
 
 // A thread's ray draws over one step: which view, pixel, jitter and background.
@@ -519,7 +347,8 @@ void Trainer::forwardChunk(ThreadState& ts, int used) {
 
 // Composites each ray of the chunk, adds its Huber loss to the thread's sums and writes the loss
 // gradients of its samples (d_sigma, d_rgb).
-void Trainer::compositeChunk(ThreadState& ts, float delta, float depth_weight) {
+void Trainer::compositeChunk(ThreadState& ts, const StepPlan& plan) {
+  const float delta = plan.delta, depth_weight = plan.depth_weight;
   for (const auto& ri : ts.rays) {
     const int o = ri.offset;
     const CompositeResult r = compositeForward(ri.count, ts.sigma.data() + o, ts.rgb.data() + 3 * o, ts.dt.data() + o,
@@ -548,6 +377,9 @@ void Trainer::compositeChunk(ThreadState& ts, float delta, float depth_weight) {
                                        ri.surf_width, depth_weight * ri.surf_weight, ts.d_sigma.data() + o);
       ++ts.depth_rays;
     }
+    if (plan.distortion_weight > 0.f)
+      ts.distortion_loss += distortionLoss(ts.sigma.data() + o, ts.dt.data() + o, ts.t.data() + o, r,
+                                           plan.distortion_weight, ts.d_sigma.data() + o);
     if (ri.learned_bg) {
       float d_bg[3];
       backgroundGradient(r.opacity, d_color, d_bg);
@@ -564,6 +396,7 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
   ts.times = StageTimes{};
   ts.loss = 0;
   ts.depth_loss = 0;
+  ts.distortion_loss = 0;
   ts.depth_rays = 0;
   ts.composited = 0;
   ts.num_rays = 0;
@@ -595,7 +428,7 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
     ts.times.field_forward += since(t0);
 
     t0 = Clock::now();
-    compositeChunk(ts, plan.delta, plan.depth_weight);
+    compositeChunk(ts, plan);
     ts.times.composite += since(t0);
 
     t0 = Clock::now();
@@ -608,10 +441,11 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
 // Sums the threads' results into stats (wall time per stage: the slowest thread's) and, when the
 // loss is finite, updates the per-view losses. Returns the summed loss.
 double Trainer::gatherThreads(StepStats* stats) {
-  double loss = 0, depth_loss = 0;
+  double loss = 0, depth_loss = 0, distortion_loss = 0;
   for (const auto& ts : threads_) {
     loss += ts->loss;
     depth_loss += ts->depth_loss;
+    distortion_loss += ts->distortion_loss;
     stats->depth_rays += ts->depth_rays;
     stats->rays += ts->num_rays;
     stats->samples += ts->num_samples;
@@ -635,7 +469,8 @@ double Trainer::gatherThreads(StepStats* stats) {
     }
   stats->loss = stats->rays > 0 ? loss / double(stats->rays) : 0.0;
   stats->depth_loss = stats->depth_rays > 0 ? depth_loss / double(stats->depth_rays) : 0.0;
-  return loss + depth_loss;
+  stats->distortion_loss = stats->rays > 0 ? distortion_loss / double(stats->rays) : 0.0;
+  return loss + depth_loss + opt_.distortion_weight * distortion_loss;
 }
 
 // Applies the threads' gradients with Adam (the mean-per-ray loss: scaled by 1/rays). False when
@@ -743,6 +578,7 @@ StepStats Trainer::step() {
   plan.depth = opt_.depth_weight > 0 && opt_.depth_ray_fraction > 0;
   plan.depth_fraction = float(opt_.depth_ray_fraction);
   plan.depth_weight = float(opt_.depth_weight);
+  plan.distortion_weight = float(opt_.distortion_weight);
   parallelRun(T, [&](int ti) { trainThread(*threads_[size_t(ti)], plan); });
 
   const double loss = gatherThreads(&stats);

@@ -101,6 +101,81 @@ TEST(LineOfSight, SurfaceCostsNothingFogInFrontMostAndAMissOne) {
   EXPECT_LT(g[24], 0.f);  // t = 0.61, the surface: push up
 }
 
+// The distortion loss against its definition, summed pair by pair in double (O(n^2)), over the
+// samples compositeForward uses.
+double distortionReference(const RaySamples& r) {
+  const float bg[3] = {0, 0, 0};
+  const int n = int(r.sigma.size());
+  const CompositeResult f = compositeForward(n, r.sigma.data(), r.rgb.data(), r.dt.data(), r.t.data(), bg);
+  std::vector<double> w;
+  double T = 1;
+  for (int i = 0; i < f.used; ++i) {
+    const double a = 1 - std::exp(-double(r.sigma[size_t(i)]) * r.dt[size_t(i)]);
+    w.push_back(T * a);
+    T *= 1 - a;
+  }
+  double L = 0;
+  for (size_t i = 0; i < w.size(); ++i) {
+    for (size_t j = 0; j < w.size(); ++j) L += w[i] * w[j] * std::fabs(double(r.t[i]) - r.t[j]);
+    L += w[i] * w[i] * r.dt[i] / 3;
+  }
+  return L;
+}
+
+TEST(Distortion, LossAndGradientMatchTheDefinitionAndFiniteDifferences) {
+  std::mt19937 rng(11);
+  const float bg[3] = {0, 0, 0};
+  int checked = 0;
+  for (int ray = 0; ray < 8; ++ray) {
+    RaySamples r = randomRay(rng, 24, ray % 2 ? 1.f : 6.f);
+    const int n = int(r.sigma.size());
+    const CompositeResult f = compositeForward(n, r.sigma.data(), r.rgb.data(), r.dt.data(), r.t.data(), bg);
+    std::vector<float> grad(size_t(n), 0.25f);  // the loss adds to what is there
+    const float scale = 0.7f;
+    const float L = distortionLoss(r.sigma.data(), r.dt.data(), r.t.data(), f, scale, grad.data());
+    EXPECT_NEAR(L, distortionReference(r), 1e-5 + 1e-4 * L) << "ray " << ray;
+    for (int i = 0; i < f.used; ++i) {
+      const float h = 1e-2f, x = r.sigma[size_t(i)];
+      r.sigma[size_t(i)] = x + h;
+      const double lp = distortionReference(r);
+      r.sigma[size_t(i)] = x - h;
+      const double lm = distortionReference(r);
+      r.sigma[size_t(i)] = x;
+      const double fd = scale * (lp - lm) / (2.0 * h);
+      ASSERT_NEAR(grad[size_t(i)] - 0.25f, fd, 1e-4 + 1e-2 * std::fabs(fd)) << "ray " << ray << " sample " << i;
+      checked += std::fabs(fd) > 1e-4;
+    }
+  }
+  EXPECT_GT(checked, 60);
+}
+
+// One compact surface costs little, the same opacity spread as fog along the ray costs much more,
+// and the gradient of the fog pushes density down where the weight is far from the rest.
+TEST(Distortion, CompactSurfaceCostsLittleFogMuch) {
+  const int n = 40;
+  RaySamples r;
+  r.rgb.assign(3 * n, 0.5f);
+  r.dt.assign(n, 0.025f);
+  for (int i = 0; i < n; ++i) r.t.push_back(0.0125f + 0.025f * float(i));
+  const float bg[3] = {0, 0, 0};
+  auto loss = [&](std::vector<float>* g) {
+    const CompositeResult f = compositeForward(n, r.sigma.data(), r.rgb.data(), r.dt.data(), r.t.data(), bg);
+    std::vector<float> d(size_t(n), 0.f);
+    const float L = distortionLoss(r.sigma.data(), r.dt.data(), r.t.data(), f, 1.f, d.data());
+    if (g) *g = d;
+    return L;
+  };
+  r.sigma.assign(n, 0.f);
+  for (int i = 24; i < 26; ++i) r.sigma[size_t(i)] = 200.f;  // opaque within 0.05
+  const float surface = loss(nullptr);
+  r.sigma.assign(n, 1.6f);  // about the same opacity (0.8) spread over the whole ray
+  std::vector<float> g;
+  const float fog = loss(&g);
+  EXPECT_LT(surface, 0.02f);
+  EXPECT_GT(fog, 10 * surface);
+  EXPECT_GT(g[0], 0.f);  // the near end of the fog: less density there lowers the loss
+}
+
 TEST(Occupancy, KeepOccupiedPinsTheCellsAroundKnownSurfaces) {
   OccupancyGrid grid(1);
   OccupancyGrid::UpdateParams p;

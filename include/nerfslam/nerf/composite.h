@@ -65,6 +65,14 @@ void compositeBackward(int n, const float* sigma, const float* rgb, const float*
 float lineOfSightLoss(int n, const float* sigma, const float* dt, const float* t, const CompositeResult& fwd,
                       float t_surf, float width, float scale, float* d_sigma);
 
+// Distortion loss of one ray (mip-NeRF 360): with the compositing weights w_i at the segment
+// midpoints t_i of lengths dt_i,
+//   L = sum_i sum_j w_i w_j |t_i - t_j| + 1/3 sum_i w_i^2 dt_i,
+// small when the weight is one compact peak and large when it is spread along the ray (fog, floaters
+// in front of the surface). O(n) with prefix sums (the t_i are sorted). Adds scale * dL/dsigma_i to
+// d_sigma[0..fwd.used) and returns L. `fwd` is compositeForward's result for the same densities.
+float distortionLoss(const float* sigma, const float* dt, const float* t, const CompositeResult& fwd, float scale,
+                     float* d_sigma);
 // Huber loss (delta) of prediction minus target summed over 3 channels; writes dL/dpred.
 float huberLoss3(const float pred[3], const float target[3], float delta, float d_pred[3]);
 

@@ -81,6 +81,10 @@ struct TrainOptions {
   // The occupancy cells on a view's lines of sight to its surface points, short of the points by
   // three surface widths, are kept empty (space carving): a sparse map says what is free space.
   bool carve_free_space = true;
+  // Distortion loss (composite.h: distortionLoss, mip-NeRF 360) on every ray with this weight: it
+  // pulls each ray's weight into one compact peak, so fog and floaters in front of surfaces (what
+  // makes real forward-moving sequences grey) cost more than a surface. Distances are NeRF-space.
+  double distortion_weight = 0;
   // Per-view appearance (appearance.h) for views without alpha: an affine colour transform per view,
   // learned with its own Adam (appearance_lr) and L2 towards identity (appearance_reg).
   bool appearance = true;
@@ -129,6 +133,9 @@ struct TrainOptions {
       check::range(1e-4, 1.0));
     v("carve_free_space", carve_free_space,
       "Keep the occupancy cells between a view and its surface points empty (free space from the sparse map)");
+    v("distortion_weight", distortion_weight,
+      "Weight of the distortion loss per ray (compact weight along each ray against fog; 0: off)",
+      check::range(0.0, 100.0));
     v("appearance", appearance, "Learn a per-view colour transform (exposure, white balance) for views without alpha");
     v("appearance_lr", appearance_lr, "Adam learning rate of the per-view appearance", check::range(0.0, 1.0));
     v("appearance_reg", appearance_reg, "L2 weight pulling each view's appearance towards identity",

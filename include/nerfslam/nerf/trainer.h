@@ -72,9 +72,10 @@ struct StageTimes {
 };
 
 struct StepStats {
-  double loss = 0;         // mean Huber loss per ray (sum over channels)
-  double depth_loss = 0;   // mean line-of-sight loss of the depth-supervised rays
-  int64_t depth_rays = 0;  // rays drawn through surface points
+  double loss = 0;             // mean Huber loss per ray (sum over channels)
+  double depth_loss = 0;       // mean line-of-sight loss of the depth-supervised rays
+  double distortion_loss = 0;  // mean distortion loss per ray (unweighted; 0 when distortion_weight is 0)
+  int64_t depth_rays = 0;      // rays drawn through surface points
   int64_t rays = 0;
   int64_t samples = 0;             // marched samples (the field's density for each)
   int64_t samples_composited = 0;  // of those, before their ray's transmittance fell below 1e-4 (colour,
@@ -151,7 +152,7 @@ class Trainer {
   void trainThread(ThreadState& ts, const StepPlan& plan);
   int marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, int total, int* attempts, bool* full);
   void forwardChunk(ThreadState& ts, int used);
-  void compositeChunk(ThreadState& ts, float delta, float depth_weight);
+  void compositeChunk(ThreadState& ts, const StepPlan& plan);
   float throughSurfacePoint(const TrainingView& v, std::mt19937_64& rng, int* px, int* py, float* ju, float* jv,
                             float* weight) const;
   double gatherThreads(StepStats* stats);
