@@ -16,7 +16,7 @@ namespace {
 
 struct EvalArgs {
   std::string ref, est, format = "auto", ref_times, est_times, json;
-  nerfslam::eval::TrajectoryEvalOptions options;
+  nerfslam::TrajectoryEvalOptions options;
 };
 
 // The file, refused when its timestamps go back (poses out of time order would be associated
@@ -82,14 +82,14 @@ nerfslam::cli::Registrar reg(
         const auto format = nerfslam::parseTrajectoryFormat(a->format);
         const nerfslam::Trajectory ref = load(a->ref, format, a->ref_times);
         const nerfslam::Trajectory est = load(a->est, format, a->est_times.empty() ? a->ref_times : a->est_times);
-        nerfslam::eval::TrajectoryReport rep;
+        nerfslam::TrajectoryReport rep;
         try {
-          rep = nerfslam::eval::evaluateTrajectory(ref, est, a->options);
+          rep = nerfslam::evaluateTrajectory(ref, est, a->options);
         } catch (const nerfslam::Error& e) {
           throw nerfslam::Error(fmt::format("evaluating {} against {}: {}", a->est, a->ref, e.what()));
         }
-        fmt::print("reference: {}\nestimate:  {}\n{}", a->ref, a->est, nerfslam::eval::formatReport(rep));
-        if (!a->json.empty()) nerfslam::writeStringAtomic(a->json, nerfslam::eval::reportToJson(rep));
+        fmt::print("reference: {}\nestimate:  {}\n{}", a->ref, a->est, nerfslam::formatReport(rep));
+        if (!a->json.empty()) nerfslam::writeStringAtomic(a->json, nerfslam::reportToJson(rep));
         return 0;
       };
     });

@@ -21,7 +21,7 @@ struct PreviewArgs {
   std::string up = "0,0,1";
   std::string size = "1280x960";
   std::string out;
-  nerfslam::render::PreviewOptions opts;
+  nerfslam::PreviewOptions opts;
 };
 
 const char* kPalette[] = {"red", "green", "blue", "yellow", "magenta", "cyan", "orange", "white"};
@@ -43,7 +43,6 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--out", a->out, "Output PNG")->required();
       return [a]() -> int {
         using namespace nerfslam;
-        using namespace nerfslam::render;
         PreviewOptions o = a->opts;
         parseImageSize(a->size, "--size", 16, &o.width, &o.height);
         const auto up = parseNumberList(a->up, "--up");

@@ -12,7 +12,7 @@
 namespace {
 
 struct SynthArgs {
-  nerfslam::render::SynthOptions opts;
+  nerfslam::SynthOptions opts;
   std::string size;
   std::string distortion;
   std::string out;
@@ -63,7 +63,7 @@ nerfslam::cli::Registrar reg(
           o.distortion = nerfslam::parseNumberList(a->distortion, "--distortion");
           if (o.distortion.size() != 4) nerfslam::fail("--distortion '{}': need 4 numbers k1,k2,p1,p2", a->distortion);
         }
-        const auto r = nerfslam::render::writeSynthSequence(o, a->out);
+        const auto r = nerfslam::writeSynthSequence(o, a->out);
         spdlog::info("synth: wrote {} frames to {} in {:.1f} s ({:.1f} frames/s); camera {}", r.frames, a->out,
                      r.seconds, r.frames / std::max(1e-9, r.seconds), r.camera.describe());
         return 0;

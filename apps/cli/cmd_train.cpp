@@ -89,8 +89,8 @@ Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const 
     const nerf::Appearance app = trainer.appearanceNear(views[i].T_world_cam);
     cv::Mat gt = nerf::compositeOver(views[i], white);
     cv::Mat pred = cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0);
-    e.psnr += eval::psnr(pred, gt, 1.0);
-    if (with_ssim) e.ssim += eval::ssim(pred, gt, 1.0);
+    e.psnr += psnr(pred, gt, 1.0);
+    if (with_ssim) e.ssim += ssim(pred, gt, 1.0);
     if (renders) {
       cv::Mat side;
       cv::hconcat(nerf::toBgr8(pred), nerf::toBgr8(gt), side);

@@ -7,7 +7,7 @@
 
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::eval {
+namespace nerfslam {
 namespace {
 
 constexpr int kWindow = 11;
@@ -91,4 +91,4 @@ double ssim(const cv::Mat& a, const cv::Mat& b, double max_value) {
   return total / static_cast<double>(ca.size());
 }
 
-}  // namespace nerfslam::eval
+}  // namespace nerfslam

@@ -10,7 +10,7 @@
 
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::eval {
+namespace nerfslam {
 namespace {
 
 bool isSorted(const std::vector<double>& v) { return std::is_sorted(v.begin(), v.end()); }
@@ -385,4 +385,4 @@ std::string reportToJson(const TrajectoryReport& r) {
   return j.dump(2) + "\n";
 }
 
-}  // namespace nerfslam::eval
+}  // namespace nerfslam

@@ -19,7 +19,7 @@
 #include "nerfslam/render/renderer.h"
 #include "nerfslam/render/trajectory.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace fs = std::filesystem;
 using Eigen::Vector3d;
 
@@ -400,4 +400,4 @@ cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts) {
   return img;
 }
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -19,7 +19,7 @@
 
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 
 std::atomic<int> g_live_contexts{0};
@@ -418,4 +418,4 @@ void Renderer::finish() {
   glFinish();
 }
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -12,7 +12,7 @@
 
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace fs = std::filesystem;
 using Eigen::Vector3d;
 
@@ -491,4 +491,4 @@ void uploadScene(const Scene& scene, Renderer& renderer) {
   }
 }
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -21,7 +21,7 @@
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace fs = std::filesystem;
 
 namespace {
@@ -451,4 +451,4 @@ SynthResult writeSynthSequence(const SynthOptions& opts, const fs::path& out,
   return r;
 }
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

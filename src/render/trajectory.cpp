@@ -9,7 +9,7 @@
 
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 using Eigen::Vector2d;
 using Eigen::Vector3d;
 
@@ -334,4 +334,4 @@ CameraTrajectory makeTrajectory(const Scene& sc, const std::string& name, double
   return loopTrajectory(m, rng, name, duration, laps);
 }
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

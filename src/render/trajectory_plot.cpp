@@ -8,7 +8,7 @@
 
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 
 const cv::Scalar kInk(30, 30, 30), kGrid(225, 225, 225), kPaper(255, 255, 255);
@@ -170,4 +170,4 @@ TrajectoryPlot plotTrajectories(const std::vector<PlotSeries>& series, const Tra
   return pl;
 }
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -352,7 +352,7 @@ void NerfMapping::measureHeldout() {
     ro.background = {0.0, 0.0, 0.0};
     const nerf::RenderResult r = nerf::renderView(*model_, heldout_camera_, h.pose, ro);
     const nerf::Appearance app = trainer_->appearanceNear(h.pose);
-    psnr.push_back(eval::psnr(cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0), h.rgb, 1.0));
+    psnr.push_back(nerfslam::psnr(cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0), h.rgb, 1.0));
   }
   double mean = 0;
   for (double p : psnr) mean += p / double(psnr.size());

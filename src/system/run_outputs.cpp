@@ -129,8 +129,8 @@ ViewEval evaluateView(const nerf::NerfModel& model, const Camera& cam, const SE3
   rgb_real.convertTo(f_real, CV_32F, 1.0 / 255.0);
   const cv::Mat pred = cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0);
   ViewEval e;
-  e.psnr = eval::psnr(pred, f_real, 1.0);
-  e.ssim = eval::ssim(pred, f_real, 1.0);
+  e.psnr = psnr(pred, f_real, 1.0);
+  e.ssim = ssim(pred, f_real, 1.0);
   cv::hconcat(nerf::toBgr8(pred), real_bgr, e.side_by_side);
   e.depth = r.depth;
   std::vector<double> rel;
@@ -161,49 +161,49 @@ std::vector<SE3> posesOf(const Trajectory& traj) {
 }
 
 // map_preview.png: with a NeRF, its surface (`dense`) and the trajectory from a viewpoint that shows
-// the scene (render::overviewViewpoint); without, the sparse points, keyframes and trajectory from
+// the scene (overviewViewpoint); without, the sparse points, keyframes and trajectory from
 // the automatic view. Empty when there is nothing to draw.
-cv::Mat mapPreview(const SlamSystem& slam, const Trajectory& traj, const render::PreviewCloud& dense) {
-  render::PreviewScene scene;
-  render::PreviewOptions po;
+cv::Mat mapPreview(const SlamSystem& slam, const Trajectory& traj, const PreviewCloud& dense) {
+  PreviewScene scene;
+  PreviewOptions po;
   const std::vector<SE3> poses = posesOf(traj);
   po.up = upFromCameras(poses);
   if (!poses.empty()) scene.trajectories.push_back({poses, {0, 0, 255}, "estimated trajectory"});
   if (!dense.points.empty() && !poses.empty()) {
     scene.clouds.push_back(dense);
-    const render::Overview ov = render::overviewViewpoint(dense.points, poses, po);
+    const Overview ov = overviewViewpoint(dense.points, poses, po);
     po.eye = ov.eye;
     po.target = ov.target;
     po.max_height = ov.max_height;
     po.line_width = 3;
     po.point_size = 3;
-    cv::Mat img = render::renderPreview(scene, po);
+    cv::Mat img = renderPreview(scene, po);
     const std::string caption = dense.label + (ov.max_height ? ", cut away above the cameras" : "");
     cv::putText(img, caption, {12, img.rows - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.55, cv::Scalar(235, 235, 235), 1,
                 cv::LINE_AA);
     return img;
   }
-  render::PreviewCloud sparse;
+  PreviewCloud sparse;
   sparse.label = "sparse map";
   for (const auto& p : slam.map().points()) sparse.points.push_back(p.position.cast<float>());
   if (!sparse.points.empty()) scene.clouds.push_back(std::move(sparse));
   for (const auto& kf : slam.map().keyframes()) scene.keyframes.push_back(kf.T_world_cam);
   if (scene.clouds.empty() && scene.trajectories.empty()) return {};
-  return render::renderPreview(scene, po);
+  return renderPreview(scene, po);
 }
 
 // trajectory.png: a top view with axes; with ground truth the Sim(3)-aligned estimate on it in metres
 // and the ATE in the title, otherwise the estimate alone in map units.
-render::TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& gt, const std::optional<Sim3>& align,
-                                      const nlohmann::json& rep) {
+TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& gt, const std::optional<Sim3>& align,
+                              const nlohmann::json& rep) {
   auto positions = [](const Trajectory& t, const Sim3& s) {
     std::vector<Eigen::Vector3d> p;
     for (const auto& e : t) p.push_back(s * e.pose.translation());
     return p;
   };
   const cv::Vec3b est_color{180, 119, 31};
-  render::TrajectoryPlotOptions o;
-  std::vector<render::PlotSeries> series;
+  TrajectoryPlotOptions o;
+  std::vector<PlotSeries> series;
   if (!gt.empty() && align) {
     o.up = upFromCameras(posesOf(gt));
     series.push_back({positions(gt, Sim3()), {150, 150, 150}, "ground truth"});
@@ -219,7 +219,7 @@ render::TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& 
     o.unit = "map units";
     o.title = "estimated trajectory (no ground truth: map units, the scale is unknown)";
   }
-  return render::plotTrajectories(series, o);
+  return plotTrajectories(series, o);
 }
 
 // The NeRF thread's figures in report.json.
@@ -273,7 +273,7 @@ std::optional<double> depthErrorAgainstGroundTruth(const std::map<double, fs::pa
 // drawn in map_preview.png (`dense`: opaque points whose depth is certain).
 void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vector<SE3>& view_poses,
                        const NerfEvalOptions& eo, const fs::path& out, nlohmann::json& rep,
-                       render::PreviewCloud* dense) {
+                       PreviewCloud* dense) {
   nerf::ExportOptions xo;
   xo.threads = eo.threads;
   std::vector<nerf::PosedCamera> views;
@@ -329,7 +329,7 @@ void writeFlythroughOutput(NerfMapping& nerf, const Camera& cam, const Trajector
 
 void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& traj,
                       const std::optional<Sim3>& gt_alignment, const fs::path& out, const NerfEvalOptions& eo,
-                      nlohmann::json& rep, render::PreviewCloud* dense) {
+                      nlohmann::json& rep, PreviewCloud* dense) {
   NerfMapping* nerf = slam.nerf();
   if (!nerf) return;
   reportNerfStats(nerf->stats(), rep);
@@ -427,7 +427,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
 }
 
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& traj, const Trajectory& gt,
-                      const std::optional<Sim3>& align, const render::PreviewCloud& dense, const nlohmann::json& rep,
+                      const std::optional<Sim3>& align, const PreviewCloud& dense, const nlohmann::json& rep,
                       const fs::path& out) {
   try {
     const cv::Mat preview = mapPreview(slam, traj, dense);

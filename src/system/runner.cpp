@@ -56,14 +56,14 @@ SystemOptions loadRunOptions(const RunOptions& ro) {
 std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   std::string spec = ro.dataset;
   if (spec.empty()) {
-    render::SynthOptions so;
+    SynthOptions so;
     so.scene = "room";
     so.trajectory = "handheld";
     so.frames = ro.demo_frames;
     const std::filesystem::path seq = ro.out / "sequence";
     std::fprintf(stderr, "no --dataset: rendering the synthetic furnished room (%d frames, 640x480, OSMesa) into %s\n",
                  so.frames, seq.string().c_str());
-    render::writeSynthSequence(so, seq);
+    writeSynthSequence(so, seq);
     spec = "tum:" + seq.string();
   }
   DatasetOptions dopt;
@@ -404,10 +404,10 @@ GroundTruthEval evaluateAgainstGroundTruth(const Dataset& ds, const Trajectory& 
   for (std::size_t i = 0; i < ds.size(); ++i)
     if (auto gt = ds.groundTruth(i)) ref.push_back({ds.timestamp(i), *gt});
   try {
-    eval::TrajectoryEvalOptions eo;
+    TrajectoryEvalOptions eo;
     eo.align = "sim3";
     eo.max_dt = 1e-3;
-    const eval::TrajectoryReport tr = eval::evaluateTrajectory(ref, traj, eo);
+    const TrajectoryReport tr = evaluateTrajectory(ref, traj, eo);
     ge.alignment = tr.alignment;
     rep["ate_rmse_m"] = tr.ape.rmse;
     rep["ate_max_m"] = tr.ape.max;
@@ -437,7 +437,7 @@ void writeRunFiles(SlamSystem& slam, const Dataset& ds, const Trajectory& traj, 
   writeTumTrajectory(out / "trajectory.txt", traj);
   writeTumTrajectory(out / "keyframes.txt", slam.keyframeTrajectory());
   writeMapPly(out / "map_points.ply", slam.map());
-  render::PreviewCloud dense;
+  PreviewCloud dense;
   if (slam.nerf()) {
     try {
       writeNerfOutputs(slam, ds, traj, ge.alignment, out, eo, rep, &dense);

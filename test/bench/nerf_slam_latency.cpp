@@ -39,7 +39,7 @@ struct Pass {
   NerfMappingStats nerf;
 };
 
-Pass runPass(const Camera& camera, const std::vector<render::SynthFrame>& frames, bool nerf) {
+Pass runPass(const Camera& camera, const std::vector<SynthFrame>& frames, bool nerf) {
   SystemOptions sys;
   sys.nerf.enabled = nerf;
   sys.lockstep = false;
@@ -67,12 +67,12 @@ Pass runPass(const Camera& camera, const std::vector<render::SynthFrame>& frames
 }
 
 void BM_TrackingWithNerf(benchmark::State& state) {
-  render::SynthOptions so;
+  SynthOptions so;
   so.scene = "room";
   so.trajectory = "handheld";
   so.frames = g_frames;
-  render::SequenceRenderer seq(so);
-  std::vector<render::SynthFrame> frames;
+  SequenceRenderer seq(so);
+  std::vector<SynthFrame> frames;
   for (int i = 0; i < g_frames; ++i) frames.push_back(seq.render(i));
   Pass sparse, nerf;
   for (auto _ : state) {

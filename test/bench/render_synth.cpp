@@ -25,7 +25,6 @@ double processCpu() {
   clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
-using namespace nerfslam::render;
 
 struct Fixture {
   Scene scene;

@@ -10,7 +10,7 @@
 
 #include "nerfslam/core/error.h"
 
-namespace nerfslam::eval {
+namespace nerfslam {
 namespace {
 
 cv::Mat randomImage(int rows, int cols, int type, unsigned seed, double lo, double hi) {
@@ -136,4 +136,4 @@ TEST(ImageMetrics, Errors) {
 }
 
 }  // namespace
-}  // namespace nerfslam::eval
+}  // namespace nerfslam

@@ -11,7 +11,7 @@
 #include "nerfslam/core/error.h"
 #include "test_support.h"
 
-namespace nerfslam::eval {
+namespace nerfslam {
 namespace {
 
 using Eigen::Vector3d;
@@ -512,4 +512,4 @@ TEST(EvalCli, ZeroLengthPathReverseOrderRepeatedStampsAndJsonOverAnInput) {
 }
 
 }  // namespace
-}  // namespace nerfslam::eval
+}  // namespace nerfslam

@@ -49,7 +49,7 @@ struct CoreLike {
 
 struct FuzzOptions {
   CoreLike core;
-  eval::TrajectoryEvalOptions eval;
+  TrajectoryEvalOptions eval;
   LeafOptions leaf;
   struct Outer {
     LeafOptions inner;

@@ -27,7 +27,7 @@ double testPsnr(const NerfModel& model, const std::vector<TrainingView>& test) {
   double sum = 0;
   for (const auto& v : test) {
     const RenderResult r = renderView(model, v.camera, v.T_world_cam, ro);
-    sum += eval::psnr(cv::min(cv::max(r.rgb, 0.0), 1.0), compositeOver(v, white), 1.0);
+    sum += psnr(cv::min(cv::max(r.rgb, 0.0), 1.0), compositeOver(v, white), 1.0);
   }
   return sum / double(test.size());
 }

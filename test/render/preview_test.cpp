@@ -19,7 +19,7 @@
 #include "nerfslam/render/trajectory.h"
 #include "test_support.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
 
@@ -313,4 +313,4 @@ TEST(Preview, OverviewOfADriveLooksAheadFromBehindTheStart) {
 }
 
 }  // namespace
-}  // namespace nerfslam::render
+}  // namespace nerfslam

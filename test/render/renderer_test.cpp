@@ -15,7 +15,7 @@
 #include "nerfslam/render/scene.h"
 #include "nerfslam/render/trajectory.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 
 Mesh coloredQuad(const std::array<Eigen::Vector3d, 4>& p, cv::Vec3f rgb) {
@@ -252,4 +252,4 @@ TEST(Renderer, RejectsBadInput) {
 }
 
 }  // namespace
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -16,7 +16,7 @@
 #include "nerfslam/render/synth.h"
 #include "test_support.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
 
@@ -427,9 +427,9 @@ TEST(SynthCli, WritesASequenceAndRejectsBadInput) {
 }
 
 }  // namespace
-}  // namespace nerfslam::render
+}  // namespace nerfslam
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 
 TEST(Synth, PhotoTexturesFromTheSharedData) {
@@ -451,4 +451,4 @@ TEST(Synth, PhotoTexturesFromTheSharedData) {
 }
 
 }  // namespace
-}  // namespace nerfslam::render
+}  // namespace nerfslam

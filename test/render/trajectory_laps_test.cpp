@@ -9,7 +9,7 @@
 #include "nerfslam/render/trajectory.h"
 #include "test_support.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 
 Scene proceduralScene(const std::string& name) {
@@ -87,4 +87,4 @@ TEST(TrajectoryLaps, SynthWritesIdenticalLaps) {
 }
 
 }  // namespace
-}  // namespace nerfslam::render
+}  // namespace nerfslam

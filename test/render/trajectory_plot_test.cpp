@@ -7,7 +7,7 @@
 #include "nerfslam/core/error.h"
 #include "nerfslam/render/trajectory_plot.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 namespace {
 
 // A drive in the x-z plane (y is height, nearly constant), 40 m long and 12 m wide.
@@ -113,4 +113,4 @@ TEST(TrajectoryPlot, PicksTheTopViewOfARoomWalkAndRefusesNothing) {
 }
 
 }  // namespace
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -324,10 +324,10 @@ TEST(NerfslamNodeOdom, PublishesTheMapToOdomCorrection) {
   // path), then scale and offset from the positions (least squares with that rotation).
   nerfslam::Trajectory est;
   for (const auto& [t, T] : snap.poses) est.push_back({t, T});
-  nerfslam::eval::TrajectoryEvalOptions eo;
+  nerfslam::TrajectoryEvalOptions eo;
   eo.align = "sim3";
   eo.max_dt = 1e-4;
-  const auto ate = nerfslam::eval::evaluateTrajectory(gt, est, eo);
+  const auto ate = nerfslam::evaluateTrajectory(gt, est, eo);
   Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
   Eigen::Vector3d c_map = Eigen::Vector3d::Zero(), c_world = Eigen::Vector3d::Zero();
   std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> pairs;  // (map, world) camera centres

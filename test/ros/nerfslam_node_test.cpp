@@ -1,6 +1,6 @@
 // gtest node started by test/ros/nerfslam_node.test (rostest): image_folder_publisher plays KITTI 06
 // into nerfslam_node. Checks ~path and tf against the dataset's ground truth (Sim(3)-aligned ATE,
-// nerfslam::eval), ~map_points, ~tracking_state and the diagnostics, and that the node survives
+// nerfslam::evaluateTrajectory), ~map_points, ~tracking_state and the diagnostics, and that the node survives
 // images with a refused encoding, a changed size and a stamp going backwards.
 #include <gtest/gtest.h>
 
@@ -167,10 +167,10 @@ TEST(NerfslamNode, TracksKittiWithinTheAteThresholdAndSurvivesBadInput) {
     }
   }
   ASSERT_GE(est.size(), static_cast<size_t>(0.9 * frames)) << "tracked frames on ~path";
-  nerfslam::eval::TrajectoryEvalOptions eo;
+  nerfslam::TrajectoryEvalOptions eo;
   eo.align = "sim3";
   eo.max_dt = 1e-3;
-  const auto rep = nerfslam::eval::evaluateTrajectory(ref, est, eo);
+  const auto rep = nerfslam::evaluateTrajectory(ref, est, eo);
   std::printf("~path: %zu poses, %zu matched, ATE RMSE %.4f m = %.4f %% of %.2f m (sim3 scale %.4f)\n", est.size(),
               rep.matched, rep.ape.rmse, rep.ape_rmse_percent, rep.ref_path_length, rep.scale);
   EXPECT_GE(rep.matched, static_cast<size_t>(0.9 * frames));
@@ -179,7 +179,7 @@ TEST(NerfslamNode, TracksKittiWithinTheAteThresholdAndSurvivesBadInput) {
 
   // 4. tf at the path's stamps (the poses at tracking time, before later bundle adjustment).
   ASSERT_GE(est_tf.size(), static_cast<size_t>(0.9 * frames)) << "tf map -> camera at the path's stamps";
-  const auto rep_tf = nerfslam::eval::evaluateTrajectory(ref, est_tf, eo);
+  const auto rep_tf = nerfslam::evaluateTrajectory(ref, est_tf, eo);
   std::printf("tf: %zu poses, ATE RMSE %.4f m = %.4f %% of path\n", est_tf.size(), rep_tf.ape.rmse,
               rep_tf.ape_rmse_percent);
   EXPECT_LT(rep_tf.ape_rmse_percent, max_tf_ate_percent);

@@ -275,11 +275,11 @@ TEST(OffboardMapping, SplitNodesMatchTheSingleNodeAndTrainTheNerf) {
   }
   ASSERT_TRUE(tpath && rpath) << "no ~path from tracking_node or nerfslam_node";
   const nerfslam::Trajectory test = fromPath(*tpath), ref = fromPath(*rpath);
-  nerfslam::eval::TrajectoryEvalOptions eo;
+  nerfslam::TrajectoryEvalOptions eo;
   eo.align = "sim3";
   eo.max_dt = 1e-4;
-  const auto ate_t = nerfslam::eval::evaluateTrajectory(gt, test, eo);
-  const auto ate_r = nerfslam::eval::evaluateTrajectory(gt, ref, eo);
+  const auto ate_t = nerfslam::evaluateTrajectory(gt, test, eo);
+  const auto ate_r = nerfslam::evaluateTrajectory(gt, ref, eo);
   // Directly, in the map frame both start from (no alignment): the largest position difference.
   std::map<double, Eigen::Vector3d> ref_at;
   for (const auto& e : ref) ref_at[e.timestamp] = e.pose.translation();

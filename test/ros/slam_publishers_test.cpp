@@ -61,14 +61,14 @@ void expectSamePose(const geometry_msgs::PoseStamped& a, const nerfslam::Traject
 // A live-like run (the tracking never waits for mapping) of the synthetic room at 30 frames/s of
 // simulated time, the path updated after every frame as the node does.
 TEST(PathBuilder, EndsAsTheSystemsTrajectoryWithFewRebuilds) {
-  nerfslam::render::SynthOptions so;
+  nerfslam::SynthOptions so;
   so.scene = "room";
   so.trajectory = "handheld";
   so.frames = 120;
   so.width = 320;
   so.height = 240;
   so.textures = "procedural";
-  nerfslam::render::SequenceRenderer seq(so);
+  nerfslam::SequenceRenderer seq(so);
   nerfslam::SystemOptions opt;
   opt.nerf.enabled = false;
   nerfslam::SlamSystem sys(seq.camera(), opt);
@@ -77,7 +77,7 @@ TEST(PathBuilder, EndsAsTheSystemsTrajectoryWithFewRebuilds) {
   double now = 0;
   ros::Time stamp;
   for (int i = 0; i < so.frames; ++i) {
-    const nerfslam::render::SynthFrame f = seq.render(i);
+    const nerfslam::SynthFrame f = seq.render(i);
     const nerfslam::FrameRecord rec = sys.trackFrame(f.bgr, f.timestamp, static_cast<uint64_t>(i));
     now = i / 30.0;
     stamp = ros::Time(1.0 + f.timestamp);

@@ -18,11 +18,11 @@ namespace {
 
 // The synthetic room seen by a hand-held camera, `frames` frames written into `dir`.
 std::unique_ptr<Dataset> handheldRoom(const test::TempDir& dir, int frames) {
-  render::SynthOptions so;
+  SynthOptions so;
   so.scene = "room";
   so.trajectory = "handheld";
   so.frames = frames;
-  render::writeSynthSequence(so, dir.path() / "seq");
+  writeSynthSequence(so, dir.path() / "seq");
   return openDataset("tum:" + (dir.path() / "seq").string());
 }
 
@@ -62,10 +62,10 @@ TEST(InitializationHandoff, FramesBetweenTheInitialisationPairAreTrackedWithoutW
   Trajectory ref;
   for (const FrameRecord& r : sys.records())
     if (const auto T = ds->groundTruth(r.index)) ref.push_back({r.timestamp, *T});
-  eval::TrajectoryEvalOptions eo;
+  TrajectoryEvalOptions eo;
   eo.align = "sim3";
   eo.max_dt = 1e-6;
-  const auto ev = eval::evaluateTrajectory(ref, sys.trajectory(), eo);
+  const auto ev = evaluateTrajectory(ref, sys.trajectory(), eo);
   std::printf("initialised at frame %d from frame %llu: %d frames tracked (%d in between), ATE %.3f %% of path\n",
               init_frame, static_cast<unsigned long long>(first), tracked, retroactive, ev.ape_rmse_percent);
   EXPECT_LT(ev.ape_rmse_percent, 1.0);

@@ -65,12 +65,12 @@ TEST(MapStore, RoundTripOfASlamMapIsExact) {
     LoadedMap l2 = loadMapFolder(dir / "map");
     SlamSystem loc(l2.camera, sparseOptions(), std::move(l2.map), MapMode::kLocalize);
     EXPECT_EQ(loc.state(), TrackingState::kLost);
-    render::SynthOptions so;
+    SynthOptions so;
     so.scene = "room";
     so.frames = 40;
     so.textures = "procedural";
-    render::SequenceRenderer seq(so);
-    const render::SynthFrame f = seq.render(25);
+    SequenceRenderer seq(so);
+    const SynthFrame f = seq.render(25);
     const FrameRecord r = loc.trackFrame(f.bgr, f.timestamp, 25);
     EXPECT_TRUE(r.tracked) << r.message;
     EXPECT_EQ(loc.relocalizedAtFrame(), 25);
@@ -183,15 +183,15 @@ TEST(MapStoreCli, LocalizesInASavedMapAlongAnotherTrajectory) {
   // And in the map's own frame: the mapping run's alignment to ground truth, applied unchanged to
   // the localised poses, puts them on the ground truth (they are poses in the saved map).
   const Trajectory gt = readTumTrajectory(tmp / "seq23" / "groundtruth.txt");
-  eval::TrajectoryEvalOptions eo;
+  TrajectoryEvalOptions eo;
   eo.align = "sim3";
   eo.max_dt = 1e-3;
-  const eval::TrajectoryReport map_fit = eval::evaluateTrajectory(
-      readTumTrajectory(tmp / "seq" / "groundtruth.txt"), readTumTrajectory(tmp / "slam" / "trajectory.txt"), eo);
+  const TrajectoryReport map_fit = evaluateTrajectory(readTumTrajectory(tmp / "seq" / "groundtruth.txt"),
+                                                      readTumTrajectory(tmp / "slam" / "trajectory.txt"), eo);
   Trajectory localized = readTumTrajectory(tmp / "loc" / "trajectory.txt");
   for (auto& e : localized) e.pose = map_fit.alignment.transformPose(e.pose);
   eo.align = "none";
-  const eval::TrajectoryReport in_map = eval::evaluateTrajectory(gt, localized, eo);
+  const TrajectoryReport in_map = evaluateTrajectory(gt, localized, eo);
   EXPECT_EQ(in_map.matched, 35u);
   std::printf("localised 35 frames: ATE %.4f m (Sim3) = %.3f%% of path; in the map's frame %.4f m (path %.2f m)\n",
               loc.at("ate_rmse_m").get<double>(), loc.at("ate_percent_of_path").get<double>(), in_map.ape.rmse,

@@ -42,19 +42,19 @@ struct SlamMap {
 };
 
 inline SlamMap runSlamOnRoom(int frames, int width, int height) {
-  render::SynthOptions so;
+  SynthOptions so;
   so.scene = "room";
   so.trajectory = "handheld";
   so.frames = frames;
   so.width = width;
   so.height = height;
   so.textures = "procedural";
-  render::SequenceRenderer seq(so);
+  SequenceRenderer seq(so);
   SlamMap m;
   m.camera = seq.camera();
   m.slam = std::make_unique<SlamSystem>(m.camera, m.options);
   for (int i = 0; i < frames; ++i) {
-    const render::SynthFrame f = seq.render(i);
+    const SynthFrame f = seq.render(i);
     m.slam->trackFrame(f.bgr, f.timestamp, static_cast<uint64_t>(i));
     m.slam->waitMappingIdle();
   }
@@ -66,21 +66,21 @@ inline SlamMap runSlamOnRoom(int frames, int width, int height) {
 // from descriptor matches between consecutive keyframes (positions arbitrary but finite), one
 // keyframe and some points erased so ids have gaps as in a real map.
 inline std::unique_ptr<Map> makeSmallMap(int keyframes, int width, int height, Camera* camera) {
-  render::SynthOptions so;
+  SynthOptions so;
   so.scene = "room";
   so.trajectory = "handheld";
   so.frames = keyframes * 4;
   so.width = width;
   so.height = height;
   so.textures = "procedural";
-  render::SequenceRenderer seq(so);
+  SequenceRenderer seq(so);
   *camera = seq.camera();
   auto map = std::make_unique<Map>(*camera);
   FeatureOptions fo = systemTrackingDefaults().features;
   fo.max_features = 600;
   std::vector<KeyframeId> ids;
   for (int k = 0; k < keyframes; ++k) {
-    const render::SynthFrame f = seq.render(4 * k);
+    const SynthFrame f = seq.render(4 * k);
     Keyframe kf;
     kf.frame =
         std::make_shared<const Frame>(extractFrame(f.bgr, *camera, fo, static_cast<uint64_t>(4 * k), f.timestamp));

@@ -27,12 +27,12 @@ namespace {
 // A map of `n` keyframes of the handheld room at 160x120 with ground-truth poses, and map points
 // back-projected from the ground-truth depth of the first keyframe (so the NeRF can fit its box).
 struct Fixture {
-  render::SynthOptions so;
-  std::unique_ptr<render::SequenceRenderer> seq;
+  SynthOptions so;
+  std::unique_ptr<SequenceRenderer> seq;
   std::unique_ptr<Map> map;
   KeyframeBus bus;
   std::vector<KeyframeEvent> events;
-  std::vector<render::SynthFrame> frames;
+  std::vector<SynthFrame> frames;
 
   explicit Fixture(int n, int stride = 6) {
     so.scene = "room";
@@ -41,12 +41,12 @@ struct Fixture {
     so.width = 160;
     so.height = 120;
     so.textures = "procedural";
-    seq = std::make_unique<render::SequenceRenderer>(so);
+    seq = std::make_unique<SequenceRenderer>(so);
     map = std::make_unique<Map>(seq->camera());
     FeatureOptions fo;
     fo.max_features = 300;
     for (int i = 0; i < n; ++i) {
-      render::SynthFrame f = seq->render(i * stride);
+      SynthFrame f = seq->render(i * stride);
       auto frame = std::make_shared<Frame>(extractFrame(f.bgr, seq->camera(), fo, uint64_t(i), f.timestamp));
       Keyframe kf;
       kf.T_world_cam = f.T_world_cam;
@@ -70,8 +70,8 @@ struct Fixture {
 
   // PSNR of the NeRF rendered at frame `i` of the sequence (any frame, keyframe or not).
   double psnrAt(const NerfMapping& nm, int i) const {
-    render::SequenceRenderer r(so);
-    const render::SynthFrame f = r.render(i);
+    SequenceRenderer r(so);
+    const SynthFrame f = r.render(i);
     double p = 0;
     nm.withModel([&](nerf::NerfModel& model) {
       nerf::RenderOptions ro;
@@ -80,7 +80,7 @@ struct Fixture {
       cv::Mat rgb, gt;
       cv::cvtColor(f.bgr, rgb, cv::COLOR_BGR2RGB);
       rgb.convertTo(gt, CV_32F, 1.0 / 255.0);
-      p = eval::psnr(cv::min(cv::max(res.rgb, 0.0), 1.0), gt, 1.0);
+      p = psnr(cv::min(cv::max(res.rgb, 0.0), 1.0), gt, 1.0);
     });
     return p;
   }
@@ -361,13 +361,13 @@ TEST(NerfMapping, ResumesFromASavedModelFrozenOrTraining) {
 
 TEST(NerfMapping, WholeSystemWritesTheDenseMapAndReport) {
   test::TempDir dir;
-  render::SynthOptions so;
+  SynthOptions so;
   so.scene = "room";
   so.trajectory = "handheld";
   so.frames = 90;
   so.width = 320;
   so.height = 240;
-  render::writeSynthSequence(so, dir.path() / "seq");
+  writeSynthSequence(so, dir.path() / "seq");
   RunOptions ro;
   ro.dataset = "tum:" + (dir.path() / "seq").string();
   ro.out = dir.path() / "out";

@@ -32,14 +32,14 @@ struct SynthRun {
 // default options, offline lockstep) into `dir`/out.
 SynthRun renderAndRun(const test::TempDir& dir, const std::string& scene, const std::string& trajectory, int frames,
                       int width, int height, std::size_t max_frames = 0) {
-  render::SynthOptions so;
+  SynthOptions so;
   so.scene = scene;
   so.trajectory = trajectory;
   so.frames = frames;
   so.width = width;
   so.height = height;
   const std::filesystem::path seq = dir.path() / "seq";
-  render::writeSynthSequence(so, seq);
+  writeSynthSequence(so, seq);
   RunOptions ro;
   ro.dataset = "tum:" + seq.string();
   ro.out = dir.path() / "out";
@@ -110,13 +110,13 @@ TEST(SyntheticSlam, PureRotationNeverInitialises) {
 
 // The handheld walk in the synthetic room, rendered into `dir`/seq and opened as a dataset.
 std::unique_ptr<Dataset> renderHandheldRoom(const test::TempDir& dir, int frames, int width, int height) {
-  render::SynthOptions so;
+  SynthOptions so;
   so.scene = "room";
   so.trajectory = "handheld";
   so.frames = frames;
   so.width = width;
   so.height = height;
-  render::writeSynthSequence(so, dir.path() / "seq");
+  writeSynthSequence(so, dir.path() / "seq");
   return openDataset("tum:" + (dir.path() / "seq").string());
 }
 

@@ -24,13 +24,13 @@ struct Fed {
 class TrackingFaults : public ::testing::Test {
  protected:
   void render(const std::string& trajectory, int frames) {
-    render::SynthOptions so;
+    SynthOptions so;
     so.scene = "room";
     so.trajectory = trajectory;
     so.frames = frames;
     so.width = 640;
     so.height = 480;
-    render::writeSynthSequence(so, dir_.path() / "seq");
+    writeSynthSequence(so, dir_.path() / "seq");
     ds_ = openDataset("tum:" + (dir_.path() / "seq").string());
     SystemOptions opt;
     opt.nerf.enabled = false;
@@ -58,10 +58,10 @@ class TrackingFaults : public ::testing::Test {
     Trajectory est = sys_->trajectory(), ref;
     for (const Fed& f : fed_)
       if (f.record.tracked && f.truth) ref.push_back({f.record.timestamp, *f.truth});
-    eval::TrajectoryEvalOptions o;
+    TrajectoryEvalOptions o;
     o.align = "sim3";
     o.max_dt = 1e-6;
-    return eval::evaluateTrajectory(ref, est, o).ape_rmse_percent;
+    return evaluateTrajectory(ref, est, o).ape_rmse_percent;
   }
   // Largest change of a keyframe present in both, relative to the map's extent (its keyframe
   // centres' bounding-box diagonal).

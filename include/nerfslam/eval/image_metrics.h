@@ -18,7 +18,7 @@
 // mismatched images, a non-positive max_value, and (SSIM) images smaller than 11x11.
 #include <opencv2/core.hpp>
 
-namespace nerfslam::eval {
+namespace nerfslam {
 
 double mse(const cv::Mat& a, const cv::Mat& b);
 double psnr(const cv::Mat& a, const cv::Mat& b, double max_value);
@@ -27,4 +27,4 @@ double ssim(const cv::Mat& a, const cv::Mat& b, double max_value);
 // CV_64F); ssim() of a single-channel pair is its mean.
 cv::Mat ssimMap(const cv::Mat& a, const cv::Mat& b, double max_value);
 
-}  // namespace nerfslam::eval
+}  // namespace nerfslam

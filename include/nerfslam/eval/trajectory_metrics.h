@@ -19,7 +19,7 @@
 #include "nerfslam/core/pose.h"
 #include "nerfslam/io/trajectory.h"
 
-namespace nerfslam::eval {
+namespace nerfslam {
 
 struct ErrorStats {
   size_t count = 0;
@@ -138,4 +138,4 @@ TrajectoryReport evaluateTrajectory(const Trajectory& ref, const Trajectory& est
 std::string formatReport(const TrajectoryReport& report);
 std::string reportToJson(const TrajectoryReport& report);
 
-}  // namespace nerfslam::eval
+}  // namespace nerfslam

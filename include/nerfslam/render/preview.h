@@ -16,7 +16,7 @@
 
 #include "nerfslam/core/pose.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 
 struct PreviewCloud {
   std::vector<Eigen::Vector3f> points;
@@ -87,4 +87,4 @@ Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std
 // outside 16..8192.
 cv::Mat renderPreview(const PreviewScene& scene, const PreviewOptions& opts);
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -19,7 +19,7 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 
 // Column-major 4x4 matrix (as GL wants it) taking OpenCV camera coordinates to clip coordinates
 // for the ideal pinhole (fx, fy, cx, cy) on a width x height image; near/far in metres (> 0).
@@ -112,4 +112,4 @@ class Renderer {
   std::unique_ptr<Impl> impl_;
 };
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

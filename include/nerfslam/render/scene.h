@@ -20,7 +20,7 @@
 
 #include "nerfslam/render/renderer.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 
 // Decorrelated sub-seed from a seed and a stream id (splitmix64 of a * golden + b + salt). Every
 // seeded generator of the render module derives its stream here; the salt keeps a caller's streams
@@ -69,4 +69,4 @@ cv::Mat proceduralTexture(int size, uint64_t seed, int style = 0);
 // Uploads the scene's textures and meshes to `renderer` (after clearMeshes()).
 void uploadScene(const Scene& scene, Renderer& renderer);
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -39,7 +39,7 @@
 #include "nerfslam/render/scene.h"
 #include "nerfslam/render/trajectory.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 
 struct SynthOptions {
   std::string scene = "room";
@@ -113,4 +113,4 @@ struct SynthResult {
 SynthResult writeSynthSequence(const SynthOptions& opts, const std::filesystem::path& out,
                                const std::function<void(int, int)>& progress = {});
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

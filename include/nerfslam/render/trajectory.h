@@ -24,7 +24,7 @@
 #include "nerfslam/core/pose.h"
 #include "nerfslam/render/scene.h"
 
-namespace nerfslam::render {
+namespace nerfslam {
 
 const std::vector<std::string>& trajectoryNames();
 // The trajectory that suits a scene: room handheld, turntable orbit, plane handheld, corridor loop.
@@ -60,4 +60,4 @@ CameraTrajectory makeTrajectory(const Scene& scene, const std::string& name, dou
 // The trajectories that accept laps > 1.
 bool trajectoryHasLaps(const std::string& name);
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -14,7 +14,7 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
-namespace nerfslam::render {
+namespace nerfslam {
 
 struct PlotSeries {
   std::vector<Eigen::Vector3d> positions;
@@ -50,4 +50,4 @@ struct TrajectoryPlot {
 // ticks or beyond them. Throws Error when no series has a position or the size is outside 200..8192.
 TrajectoryPlot plotTrajectories(const std::vector<PlotSeries>& series, const TrajectoryPlotOptions& options);
 
-}  // namespace nerfslam::render
+}  // namespace nerfslam

@@ -32,14 +32,14 @@ namespace nerfslam {
 // depth certain.
 void writeNerfOutputs(SlamSystem& slam, const Dataset& dataset, const Trajectory& trajectory,
                       const std::optional<Sim3>& gt_alignment, const std::filesystem::path& out,
-                      const NerfEvalOptions& options, nlohmann::json& report, render::PreviewCloud* dense = nullptr);
+                      const NerfEvalOptions& options, nlohmann::json& report, PreviewCloud* dense = nullptr);
 
 // map_preview.png: the NeRF surface `dense` (when not empty) and the trajectory from a viewpoint that
 // shows the scene, else the sparse points, keyframes and trajectory; and trajectory.png, a top view
 // with axes: with `ground_truth` and `gt_alignment` the aligned estimate on it in metres, titled with
 // the report's ate_rmse_m, ate_percent_of_path and path_length_m, else the estimate in map units.
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& trajectory, const Trajectory& ground_truth,
-                      const std::optional<Sim3>& gt_alignment, const render::PreviewCloud& dense,
-                      const nlohmann::json& report, const std::filesystem::path& out);
+                      const std::optional<Sim3>& gt_alignment, const PreviewCloud& dense, const nlohmann::json& report,
+                      const std::filesystem::path& out);
 
 }  // namespace nerfslam
