@@ -16,12 +16,14 @@
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/options_yaml.h"
 #include "nerfslam/core/stop_signal.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/nerf/renderer.h"
 #include "nerfslam/nerf/trainer.h"
+#include "nerfslam/system/slam_system.h"
 
 namespace nerfslam::cli {
 namespace {
@@ -41,6 +43,10 @@ struct TrainArgs {
   double eval_interval = 10.0;
   int curve_views = 3;
   int samples_per_step = 1 << 16;
+  // A `run --config` file: its nerf.train options (the same keys, docs/options.md) train here too;
+  // --threads, --seed and --samples-per-step given on the command line override them.
+  std::string config;
+  bool threads_given = false, seed_given = false, samples_given = false;
 };
 
 struct Split {
@@ -115,9 +121,16 @@ int runTrain(const TrainArgs& a) {
   scene.aabb_scale = aabb_scale;
   nerf::NerfModel model = nerf::NerfModel::create(nerf::FieldConfig{}, scene, uint64_t(a.seed));
   nerf::TrainOptions to;
-  to.threads = a.threads;
-  to.seed = a.seed;
-  to.samples_per_step = a.samples_per_step;
+  if (!a.config.empty()) {
+    SystemOptions so;
+    loadOptionsFile(a.config, so);
+    validateOptions(so, a.config);
+    to = so.nerf.train;
+  }
+  const bool defaults = a.config.empty();
+  if (defaults || a.threads_given) to.threads = a.threads;
+  if (defaults || a.seed_given) to.seed = a.seed;
+  if (defaults || a.samples_given) to.samples_per_step = a.samples_per_step;
   const size_t num_train = split.train.size();
   nerf::Trainer trainer(model, std::move(split.train), to);  // it keeps a compact copy of each image
 
@@ -173,8 +186,9 @@ int runTrain(const TrainArgs& a) {
   nlohmann::json rep;
   rep["transforms"] = a.transforms;
   rep["downscale"] = a.downscale;
-  rep["threads"] = a.threads;
-  rep["seed"] = a.seed;
+  rep["threads"] = to.threads;
+  rep["seed"] = to.seed;
+  if (!a.config.empty()) rep["config"] = a.config;
   rep["train_views"] = num_train;
   rep["test_views"] = split.test.size();
   rep["interrupted"] = interrupted;
@@ -217,16 +231,23 @@ Registrar reg(
       secs->excludes(steps);
       sub.add_option("--test-every", a->test_every, "Hold out every Nth view (0: none)")->check(CLI::Range(0, 1000000));
       sub.add_option("--downscale", a->downscale, "Image downscale factor (>= 1)")->check(CLI::Range(1.0, 64.0));
-      sub.add_option("--threads", a->threads, "Threads")->check(CLI::Range(1, 256));
-      sub.add_option("--seed", a->seed, "Random seed")->check(nerfslam::cli::kNonNegative);
+      sub.add_option("--config", a->config,
+                     "Options YAML as for `run --config`: its nerf.train options are used (docs/options.md)");
+      auto* threads = sub.add_option("--threads", a->threads, "Threads")->check(CLI::Range(1, 256));
+      auto* seed = sub.add_option("--seed", a->seed, "Random seed")->check(nerfslam::cli::kNonNegative);
       sub.add_option("--eval-interval", a->eval_interval,
                      "Seconds of training between PSNR-curve evaluations (0: none)")
           ->check(nerfslam::cli::kNonNegative);
       sub.add_option("--curve-views", a->curve_views, "Test views evaluated for the PSNR curve")
           ->check(CLI::Range(1, 1000));
-      sub.add_option("--samples-per-step", a->samples_per_step, "Ray samples per optimiser step")
-          ->check(CLI::Range(256, 1 << 22));
-      return [a]() -> int { return runTrain(*a); };
+      auto* samples = sub.add_option("--samples-per-step", a->samples_per_step, "Ray samples per optimiser step")
+                          ->check(CLI::Range(256, 1 << 22));
+      return [a, threads, seed, samples]() -> int {
+        a->threads_given = threads->count() > 0;
+        a->seed_given = seed->count() > 0;
+        a->samples_given = samples->count() > 0;
+        return runTrain(*a);
+      };
     });
 
 }  // namespace

@@ -272,8 +272,7 @@ std::optional<double> depthErrorAgainstGroundTruth(const std::map<double, fs::pa
 // nerf_cloud.ply/.pcd from depth renders of cloud_views training views, mesh.ply, and the surface
 // drawn in map_preview.png (`dense`: opaque points whose depth is certain).
 void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vector<SE3>& view_poses,
-                       const NerfEvalOptions& eo, const fs::path& out, nlohmann::json& rep,
-                       PreviewCloud* dense) {
+                       const NerfEvalOptions& eo, const fs::path& out, nlohmann::json& rep, PreviewCloud* dense) {
   nerf::ExportOptions xo;
   xo.threads = eo.threads;
   std::vector<nerf::PosedCamera> views;

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <cmath>
 #include <cstring>
@@ -135,6 +136,36 @@ TEST(TrainCli, BadInputGivesClearErrors) {
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.output.find("camera_angle_x"), std::string::npos) << r.output;
   EXPECT_FALSE(std::filesystem::exists(dir / "o" / "model.nerf"));
+}
+
+// `train --config` takes the nerf.train options of a `run --config` file; --samples-per-step on the
+// command line overrides it; a wrong key is refused naming the file.
+TEST(TrainCli, ConfigGivesTheTrainingOptionsAndFlagsOverrideIt) {
+  test::TempDir dir;
+  std::ofstream(dir / "t.json")
+      << R"({"camera_angle_x": 0.8, "frames": [)"
+         R"({"file_path": "a", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,2],[0,0,0,1]]},)"
+         R"({"file_path": "b", "transform_matrix": [[1,0,0,0.2],[0,1,0,0],[0,0,1,2],[0,0,0,1]]}]})";
+  cv::imwrite((dir / "a.png").string(), cv::Mat(16, 16, CV_8UC3, cv::Scalar(40, 90, 200)));
+  cv::imwrite((dir / "b.png").string(), cv::Mat(16, 16, CV_8UC3, cv::Scalar(40, 90, 200)));
+  test::writeText(dir / "c.yaml", "nerf:\n  train:\n    samples_per_step: 4096\n    distortion_weight: 0.01\n");
+  const std::string base = "train --transforms " + (dir / "t.json").string() + " --steps 2 --test-every 0 --config " +
+                           (dir / "c.yaml").string();
+  auto r = test::runCli(base + " --out " + (dir / "o1").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto report = nlohmann::json::parse(std::ifstream(dir / "o1" / "report.json"));
+  EXPECT_EQ(report.at("samples_per_step").get<int>(), 4096);
+  r = test::runCli(base + " --samples-per-step 2048 --out " + (dir / "o2").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  report = nlohmann::json::parse(std::ifstream(dir / "o2" / "report.json"));
+  EXPECT_EQ(report.at("samples_per_step").get<int>(), 2048);
+  test::writeText(dir / "bad.yaml", "nerf:\n  train:\n    distorsion_weight: 0.01\n");
+  r = test::runCli("train --transforms " + (dir / "t.json").string() + " --steps 1 --config " +
+                   (dir / "bad.yaml").string() + " --out " + (dir / "o3").string());
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("bad.yaml"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("distorsion_weight"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir / "o3" / "model.nerf"));
 }
 
 std::vector<std::vector<float>> params(NerfModel& m) {
