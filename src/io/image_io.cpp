@@ -11,6 +11,7 @@
 
 #include "image_header.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 
 namespace nerfslam {
 
@@ -21,16 +22,14 @@ namespace {
 // Larger than any camera we know (16384 per side, 64 megapixels: 3 bytes a pixel is 192 MB).
 constexpr int64_t kMaxImageSide = 16384;
 constexpr int64_t kMaxImagePixels = int64_t{64} << 20;
+// The largest image file: 64 megapixels of 16-bit RGBA uncompressed are 512 MiB.
+constexpr uint64_t kMaxImageFileBytes = uint64_t{1} << 30;
 
 }  // namespace
 
 cv::Mat readImage(const fs::path& path, ImageMode mode) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) fail("{}: image file not found", path.string());
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot open image file", path.string());
-  std::vector<uchar> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) fail("{}: read error", path.string());
+  const std::string data = readInputFile(path, "image file", kMaxImageFileBytes);
+  const std::vector<uchar> bytes(data.begin(), data.end());
   if (bytes.empty()) fail("{}: empty image file", path.string());
   const auto header = io_detail::sniffImageHeader(bytes);
   if (!header) fail("{}: not a readable image (unknown format: PNG, JPEG, BMP, TIFF or PNM expected)", path.string());

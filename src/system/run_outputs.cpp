@@ -13,6 +13,7 @@
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/core/statistics.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/io/image_io.h"
@@ -63,11 +64,14 @@ std::map<double, fs::path> depthIndex(const Dataset& ds, std::string* why) {
     return idx;
   }
   const fs::path file = ds.root() / "depth.txt";
-  std::ifstream in(file);
-  if (!in) {
-    *why = file.string() + " not found";
+  InputFile f;
+  try {
+    f = openInputFile(file);
+  } catch (const Error& e) {
+    *why = e.what();
     return idx;
   }
+  std::istream& in = f.stream;
   std::string line;
   int lineno = 0;
   while (std::getline(in, line)) {

@@ -168,7 +168,8 @@ void readFrames(const Dataset& ds, SlamSystem& slam, const RunOptions& ro, const
     }
     if (!(f.timestamp > last_ts)) {
       ++pipe.out_of_order;
-      spdlog::warn("frame {}: timestamp {:.6f} not after the previous {:.6f}; skipped", i, f.timestamp, last_ts);
+      spdlog::warn("frame {}: timestamp {} not after the previous {}; skipped", i, numberForMessage(f.timestamp),
+                   numberForMessage(last_ts));
       continue;
     }
     last_ts = f.timestamp;

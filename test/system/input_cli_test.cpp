@@ -1,0 +1,138 @@
+// Outside input through the CLI (issue 22, docs/reliability.md "Outside input"): each case is one
+// short `nerfslam` run and the error it must give.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <fmt/format.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "nerfslam/core/camera.h"
+#include "test_support.h"
+
+namespace nerfslam {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A folder dataset of `n` noise frames (320x240) with times.txt and camera.yaml.
+fs::path makeFolderDataset(const fs::path& dir, int n) {
+  fs::create_directories(dir);
+  std::ofstream times(dir / "times.txt");
+  for (int i = 0; i < n; ++i) {
+    cv::imwrite((dir / fmt::format("{:06d}.png", i)).string(), test::noiseImage(320, 240, uint32_t(i + 1)));
+    times << 0.1 * i << "\n";
+  }
+  saveCameraYaml(Camera::pinhole(320, 240, 300, 300, 159.5, 119.5), dir / "camera.yaml");
+  return dir;
+}
+
+void expectRefused(const std::string& args, const std::string& message) {
+  SCOPED_TRACE(args);
+  const test::CommandResult r = test::runCli(args);
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("error: " + message), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("bad_alloc"), std::string::npos) << r.output;
+}
+
+// A directory where a file is expected: "<path>: is a directory" from every subcommand, where
+// `export --model DIR` printed "error: std::bad_alloc" (an ifstream opens a directory; seeking to its
+// end made the model loader allocate 2^63 bytes).
+TEST(InputCli, DirectoriesWhereFilesAreExpectedAreNamed) {
+  test::TempDir tmp;
+  const fs::path d = tmp / "d";
+  fs::create_directories(d);
+  const std::string D = d.string(), out = (tmp / "out").string();
+  expectRefused("export --model " + D + " --format ply --out " + (tmp / "x.ply").string(),
+                D + ": is a directory, not a NeRF model file");
+  expectRefused("export --model " + D + " --format mesh --out " + (tmp / "x.ply").string(),
+                D + ": is a directory, not a NeRF model file");
+  expectRefused("render --model " + D + " --pose '0 0 0 0 0 0 1' --out " + out,
+                D + ": is a directory, not a NeRF model file");
+  expectRefused("render-preview --trajectory " + D + " --out " + (tmp / "p.png").string(),
+                D + ": is a directory, not a trajectory file");
+  expectRefused("render-preview --keyframes " + D + " --out " + (tmp / "p.png").string(),
+                D + ": is a directory, not a trajectory file");
+  expectRefused("eval --ref " + D + " --est " + D, D + ": is a directory, not a trajectory file");
+  expectRefused("synth --camera " + D + " --frames 2 --out " + out, D + ": is a directory, not a YAML file");
+  expectRefused("run --no-nerf --config " + D + " --out " + out, D + ": is a directory, not a YAML file");
+}
+
+// The same for the files a dataset names: its times.txt, camera.yaml, an image its index lists, its
+// transforms.json (a folder dataset took a times.txt or camera.yaml directory for a missing file).
+TEST(InputCli, DirectoriesWhereADatasetNamesAFileAreNamed) {
+  test::TempDir tmp;
+  const fs::path d = tmp / "d";
+  fs::create_directories(d);
+  const std::string D = d.string(), out = (tmp / "out").string();
+  const fs::path seq = makeFolderDataset(tmp / "seq", 3);
+  const std::string run = "run --no-nerf --dataset folder:" + seq.string() + " --out " + out;
+  expectRefused(run + " --camera " + D, D + ": is a directory, not a YAML file");
+  fs::rename(seq / "times.txt", tmp / "times.txt");
+  fs::create_directory(seq / "times.txt");
+  expectRefused(run, (seq / "times.txt").string() + ": is a directory");
+  fs::remove(seq / "times.txt");
+  fs::rename(tmp / "times.txt", seq / "times.txt");
+  fs::rename(seq / "camera.yaml", tmp / "camera.yaml");
+  fs::create_directory(seq / "camera.yaml");
+  expectRefused(run, (seq / "camera.yaml").string() + ": is a directory, not a YAML file");
+  fs::remove(seq / "camera.yaml");
+  fs::rename(tmp / "camera.yaml", seq / "camera.yaml");
+
+  // TUM: an image the index lists; transforms.json itself.
+  const fs::path tum = tmp / "tum";
+  fs::create_directories(tum / "rgb" / "2.png");
+  cv::imwrite((tum / "rgb" / "1.png").string(), test::noiseImage(320, 240, 1));
+  test::writeText(tum / "rgb.txt", "1.0 rgb/1.png\n2.0 rgb/2.png\n");
+  fs::copy(seq / "camera.yaml", tum / "camera.yaml");
+  expectRefused("run --no-nerf --dataset tum:" + tum.string() + " --out " + out,
+                (tum / "rgb.txt").string() + ":2: image " + (tum / "rgb" / "2.png").string() +
+                    " is a directory, not an image file");
+  fs::create_directories(tmp / "nerf" / "transforms.json");
+  expectRefused("train --transforms " + (tmp / "nerf").string() + " --steps 1 --out " + out,
+                (tmp / "nerf" / "transforms.json").string() + ": is a directory, not a transforms.json file");
+  EXPECT_FALSE(fs::exists(out + "/trajectory.txt"));
+}
+
+// What messages echo stays short (issue 22): a timestamp of 1e300 was printed with 301 digits, a
+// long token of a trajectory or index file whole.
+TEST(InputCli, MessagesCutLongValuesAndPrintHugeNumbersShort) {
+  test::TempDir tmp;
+  test::writeText(tmp / "ref.txt", "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n");
+  test::writeText(tmp / "est.txt", "1e300 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n");
+  const auto r = test::runCli("eval --ref " + (tmp / "ref.txt").string() + " --est " + (tmp / "est.txt").string());
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("est.txt: pose 2 (timestamp 1.000000) is before pose 1 (1e+300): a trajectory must be in "
+                          "time order"),
+            std::string::npos)
+      << r.output;
+  test::writeText(tmp / "long.txt", std::string(1000000, '7') + "x 0 0 0 0 0 0 1\n");
+  const auto l = test::runCli("eval --ref " + (tmp / "long.txt").string() + " --est " + (tmp / "est.txt").string());
+  EXPECT_EQ(l.exit_code, 1);
+  EXPECT_NE(l.output.find("long.txt:1: column 1: '" + std::string(77, '7') + "...' is not a number"), std::string::npos)
+      << l.output.substr(0, 500);
+  EXPECT_LT(l.output.size(), 1000u);
+
+  const fs::path seq = makeFolderDataset(tmp / "seq", 3);
+  test::writeText(seq / "times.txt", "1e300\n1\n2\n");
+  const auto f = test::runCli("run --no-nerf --dataset folder:" + seq.string() + " --out " + (tmp / "out").string());
+  EXPECT_EQ(f.exit_code, 1);
+  EXPECT_NE(f.output.find("times.txt:2: timestamp 1.000000000 is not after the previous one (1e+300); timestamps "
+                          "must increase"),
+            std::string::npos)
+      << f.output;
+  fs::remove(seq / "times.txt");
+  const auto n = test::runCli("run --no-nerf --dataset folder:" + seq.string() + " --out " + (tmp / "out").string());
+  EXPECT_NE(n.output.find("error: " + seq.string() +
+                          ": no times.txt or timestamps.txt in the folder; give the frame rate (--fps) or add "
+                          "times.txt (one time in seconds per line, a line per image in the images' order)"),
+            std::string::npos)
+      << n.output;
+}
+
+}  // namespace
+}  // namespace nerfslam
