@@ -8,6 +8,7 @@
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/parse.h"
+#include "nerfslam/io/ply_header.h"
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/render/preview.h"
 
@@ -56,7 +57,10 @@ nerfslam::cli::Registrar reg(
           o.target = target;
         }
         PreviewScene scene;
-        for (const auto& p : a->points) scene.clouds.push_back(loadPointCloudPly(p));
+        for (const auto& p : a->points) {
+          checkPlyFile(p);  // counts the header declares against the file's size, before PCL allocates them
+          scene.clouds.push_back(loadPointCloudPly(p));
+        }
         for (size_t i = 0; i < a->trajectories.size(); ++i) {
           std::string file = a->trajectories[i];
           std::string color = kPalette[i % 8];
