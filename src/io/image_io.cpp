@@ -39,6 +39,7 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
          path.string(), io_detail::imageFormatName(header->format), header->width, header->height, kMaxImageSide,
          kMaxImagePixels >> 20);
   io_detail::checkImageComplete(bytes, header->format, path.string());
+  if (header->format == io_detail::ImageFormat::kJpeg) io_detail::checkJpegData(bytes, path.string());
   int flags = cv::IMREAD_GRAYSCALE;
   if (mode == ImageMode::kColor) flags = cv::IMREAD_COLOR;
   if (mode == ImageMode::kUnchanged) flags = cv::IMREAD_UNCHANGED;
@@ -48,7 +49,9 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
   } catch (const cv::Exception& e) {
     fail("{}: cannot decode image: {}", path.string(), e.what());
   }
-  if (image.empty()) fail("{}: not a readable image (unknown format or corrupt data)", path.string());
+  if (image.empty())
+    fail("{}: corrupt {} image (the decoder could not read its data)", path.string(),
+         io_detail::imageFormatName(header->format));
   return image;
 }
 

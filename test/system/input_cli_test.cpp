@@ -168,5 +168,40 @@ TEST(InputCli, HeadersDeclaringMoreThanTheFileHoldsAreRefusedAtOnce) {
                 (tmp / "list.yaml").string() + ": 9.90 MB, more than the 1.00 MB a YAML file may have");
 }
 
+// A corrupt JPEG frame mid-sequence (cut short and re-terminated with FF D9) was decoded by OpenCV
+// with only libjpeg's raw warning on stderr, and tracked half grey. Now it is an unreadable frame:
+// the run stops reading there with an error naming the file, writes what it has of the frames
+// before, says why in the report and exits 1 (the policy for any frame that cannot be read,
+// runner.cpp).
+TEST(InputCli, CorruptJpegFrameStopsTheRunNamingTheFile) {
+  NERFSLAM_REQUIRE_DATA(images, "strecha_fountain-P11/images");
+  test::TempDir tmp;
+  const fs::path seq = tmp / "seq";
+  fs::create_directories(seq);
+  std::ofstream times(seq / "times.txt");
+  for (int i = 0; i < 4; ++i) {
+    fs::copy_file(images / fmt::format("{:04d}.jpg", i), seq / fmt::format("{:04d}.jpg", i));
+    times << i << "\n";
+  }
+  times.close();
+  saveCameraYaml(Camera::pinhole(768, 512, 690, 690, 383.5, 255.5), seq / "camera.yaml");
+  std::ifstream in(seq / "0002.jpg", std::ios::binary);
+  const std::string jpg((std::istreambuf_iterator<char>(in)), {});
+  in.close();
+  test::writeText(seq / "0002.jpg", jpg.substr(0, jpg.size() / 2) + "\xff\xd9");
+  const fs::path out = tmp / "out";
+  const auto r = test::runCli("run --no-nerf --dataset folder:" + seq.string() + " --out " + out.string());
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  const std::string message =
+      (seq / "0002.jpg").string() + ": corrupt JPEG image: Corrupt JPEG data: premature end of data segment";
+  EXPECT_NE(r.output.find("[error] " + message), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("done: 2/4 frames tracked, 2 keyframes"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("\nCorrupt JPEG data"), std::string::npos) << "libjpeg's own warning:\n" << r.output;
+  std::ifstream report(out / "report.json");
+  const std::string rep((std::istreambuf_iterator<char>(report)), {});
+  EXPECT_NE(rep.find("\"failure\": \"" + message + "\""), std::string::npos) << rep;
+  EXPECT_NE(rep.find("\"frames_processed\": 2"), std::string::npos) << rep;
+}
+
 }  // namespace
 }  // namespace nerfslam
