@@ -10,6 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "image_header.h"
+#include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/input_file.h"
 
@@ -53,6 +54,18 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
     fail("{}: corrupt {} image (the decoder could not read its data)", path.string(),
          io_detail::imageFormatName(header->format));
   return image;
+}
+
+void writeImageAtomic(const fs::path& path, const cv::Mat& image, const std::vector<int>& params) {
+  std::vector<uchar> bytes;
+  bool ok = false;
+  try {
+    ok = cv::imencode(path.extension().string(), image, bytes, params);
+  } catch (const cv::Exception& e) {
+    fail("{}: cannot encode the image: {}", path.string(), e.what());
+  }
+  if (!ok) fail("{}: cannot encode the image (unknown extension or unsupported pixel type)", path.string());
+  writeStringAtomic(path, std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
 }
 
 bool isImageExtension(const fs::path& path) {

@@ -436,8 +436,11 @@ GroundTruthEval evaluateAgainstGroundTruth(const Dataset& ds, const Trajectory& 
 void writeRunFiles(SlamSystem& slam, const Dataset& ds, const Trajectory& traj, const GroundTruthEval& ge,
                    const std::filesystem::path& out, const NerfEvalOptions& eo, nlohmann::json& rep) {
   writeTumTrajectory(out / "trajectory.txt", traj);
+  addRunOutput(rep, "trajectory.txt");
   writeTumTrajectory(out / "keyframes.txt", slam.keyframeTrajectory());
+  addRunOutput(rep, "keyframes.txt");
   writeMapPly(out / "map_points.ply", slam.map());
+  addRunOutput(rep, "map_points.ply");
   PreviewCloud dense;
   if (slam.nerf()) {
     try {
@@ -468,6 +471,9 @@ bool saveRunMap(SlamSystem& slam, const RunOptions& ro, const Camera& camera, co
   try {
     const MapSaveResult ms = saveMapFolder(*map_dir, slam.map(), camera, sys, write_nerf_model);
     rep["map_saved"] = map_dir->string();
+    std::error_code ec;
+    const std::filesystem::path rel = std::filesystem::relative(*map_dir, ro.out, ec);
+    addRunOutput(rep, (ec || rel.empty() || *rel.begin() == ".." ? map_dir->string() : rel.string()) + "/");
     rep["map_save_s"] = ms.seconds;
     rep["map_bytes"] = ms.bytes;
   } catch (const std::exception& e) {
@@ -505,8 +511,13 @@ void printSummary(const SlamSystem& slam, const Dataset& ds, const Trajectory& t
                  rep["skipped"].empty()
                      ? "nothing"
                      : fmt::format("{}", fmt::join(rep["skipped"].get<std::vector<std::string>>(), ", ")).c_str());
-  std::fprintf(stderr, "results in %s (report.json, trajectory.txt, map_preview.png%s)\n", out.string().c_str(),
-               slam.nerf() ? ", nerf/, nerf_cloud.ply, mesh.ply" : "");
+  // What was written (a NeRF output that failed is not among them: nerf_error says why).
+  std::string written;
+  for (const auto& o : rep.value("outputs", nlohmann::json::array()))
+    written += (written.empty() ? "" : ", ") + o.get<std::string>();
+  std::fprintf(stderr, "results in %s (%s)\n", out.string().c_str(), written.c_str());
+  if (rep.contains("nerf_error"))
+    std::fprintf(stderr, "NeRF outputs not written: %s\n", rep["nerf_error"].get<std::string>().c_str());
 }
 
 }  // namespace
@@ -586,6 +597,7 @@ RunResult runSlam(const RunOptions& ro) {
   const GroundTruthEval ge = evaluateAgainstGroundTruth(*ds, traj, rep);
   writeRunFiles(slam, *ds, traj, ge, ro.out, eval_options, rep);
   const bool map_save_failed = saveRunMap(slam, ro, camera, sys, rep);
+  addRunOutput(rep, "report.json");
   writeStringAtomic(ro.out / "report.json", rep.dump(2) + "\n");
   printSummary(slam, *ds, traj, rep, failure, pipe.processed.load() / std::max(wall_s, 1e-9), ro.out);
 

@@ -20,6 +20,11 @@ namespace nerfslam {
 // kGray/kColor always give 8-bit images (16-bit data is scaled down by 1/256).
 cv::Mat readImage(const std::filesystem::path& path, ImageMode mode = ImageMode::kGray);
 
+// Encodes `image` in the format of `path`'s extension (cv::imencode: .png, .jpg, ...) and writes it
+// atomically (core/atomic_file.h) with every write checked: an Error naming the file when the
+// format is unknown, encoding fails or the disk is full; never a cut-off image in its place.
+void writeImageAtomic(const std::filesystem::path& path, const cv::Mat& image, const std::vector<int>& params = {});
+
 // True for the extensions the image-folder reader accepts: png jpg jpeg bmp tif tiff pgm ppm
 // (case-insensitive).
 bool isImageExtension(const std::filesystem::path& path);
