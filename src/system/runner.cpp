@@ -15,6 +15,7 @@
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/bounded_queue.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/core/options_yaml.h"
 #include "nerfslam/core/stop_signal.h"
 #include "nerfslam/core/thread.h"
@@ -71,6 +72,25 @@ std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   dopt.max_frames = ro.max_frames;
   dopt.fps = ro.fps;
   return openDataset(spec, dopt);
+}
+
+// Outputs are not written into the dataset being read: a folder dataset's frames are every image in
+// its folder, so the PNGs a run writes there (map_preview.png, trajectory.png) would be frames of the
+// next run; and the outputs of any kind would be mixed with the dataset's own files. Checked before
+// anything is written.
+void refuseOutputsInDataset(const RunOptions& ro, const Dataset& ds) {
+  const bool folder = ds.kind() == "folder";
+  auto check = [&](const std::filesystem::path& dir, const char* option) {
+    if (folder && isInsideDirectory(dir, ds.root()))
+      fail(
+          "run: {} {} is inside the folder dataset {}, whose frames are every image in it; choose an output "
+          "folder outside it",
+          option, dir.string(), ds.root().string());
+    if (!folder && sameFile(dir, ds.root()))
+      fail("run: {} {} is the {} dataset's own folder; choose another output folder", option, dir.string(), ds.kind());
+  };
+  check(ro.out, "--out");
+  if (ro.save_map) check(*ro.save_map, "--save-map");
 }
 
 // The saved map to start from (map_store.h): verified, and refused when made with another camera.
@@ -540,6 +560,7 @@ void writeMapPly(const std::filesystem::path& path, const Map& map) {
 RunResult runSlam(const RunOptions& ro) {
   const SystemOptions sys = loadRunOptions(ro);
   const std::unique_ptr<Dataset> ds = openRunDataset(ro);
+  refuseOutputsInDataset(ro, *ds);
   ensureDirectory(ro.out);
   const Camera& camera = ds->camera();
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());

@@ -203,5 +203,53 @@ TEST(InputCli, CorruptJpegFrameStopsTheRunNamingTheFile) {
   EXPECT_NE(rep.find("\"frames_processed\": 2"), std::string::npos) << rep;
 }
 
+// Outputs written over inputs are refused before anything is written: `calibrate --out` onto one of
+// its photos (it replaced the photo with the YAML), `run --out` (or --save-map) into a folder
+// dataset's folder (its PNGs would become frames), or any dataset's own folder, `eval --json` onto
+// the estimate or a KITTI timestamps file.
+TEST(InputCli, OutputsOverInputsAreRefused) {
+  test::TempDir tmp;
+  const fs::path photos = tmp / "photos";
+  fs::create_directories(photos);
+  for (int i = 0; i < 2; ++i)
+    cv::imwrite((photos / fmt::format("left{:02d}.png", i)).string(), test::noiseImage(64, 48, uint32_t(i + 1)));
+  const auto before = fs::file_size(photos / "left01.png");
+  expectRefused("calibrate --images " + photos.string() + " --board 9x6 --square 0.025 --out " +
+                    (tmp / "photos" / ".." / "photos" / "left01.png").string(),
+                "calibrate: --out " + (tmp / "photos" / ".." / "photos" / "left01.png").string() +
+                    " is one of the photos in --images; choose another output file");
+  EXPECT_EQ(fs::file_size(photos / "left01.png"), before);
+
+  const fs::path seq = makeFolderDataset(tmp / "seq", 3);
+  auto listing = [](const fs::path& d) {
+    std::vector<std::string> names;
+    for (const auto& e : fs::recursive_directory_iterator(d)) names.push_back(e.path().string());
+    std::sort(names.begin(), names.end());
+    return names;
+  };
+  const auto files = listing(seq);
+  const std::string run = "run --no-nerf --dataset folder:" + seq.string();
+  expectRefused(run + " --out " + seq.string(),
+                "run: --out " + seq.string() + " is inside the folder dataset " + seq.string() +
+                    ", whose frames are every image in it; choose an output folder outside it");
+  expectRefused(run + " --out " + (seq / "results").string(),
+                "run: --out " + (seq / "results").string() + " is inside the folder dataset");
+  expectRefused(run + " --out " + (tmp / "out").string() + " --save-map " + (seq / "map").string(),
+                "run: --save-map " + (seq / "map").string() + " is inside the folder dataset");
+  EXPECT_EQ(listing(seq), files);
+  EXPECT_FALSE(fs::exists(tmp / "out"));
+
+  const fs::path est = tmp / "est.txt", times = tmp / "times.txt";
+  test::writeText(est, "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n");
+  test::writeText(times, "0\n1\n");
+  test::writeText(tmp / "kitti.txt", "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1 0\n");
+  expectRefused("eval --ref " + est.string() + " --est " + est.string() + " --json " + est.string(),
+                "eval: --json " + est.string() + " is one of the inputs; choose another output file");
+  expectRefused("eval --format kitti --ref " + (tmp / "kitti.txt").string() + " --est " + (tmp / "kitti.txt").string() +
+                    " --ref-times " + times.string() + " --json " + times.string(),
+                "eval: --json " + times.string() + " is one of the inputs");
+  EXPECT_EQ(fs::file_size(times), 4u);
+}
+
 }  // namespace
 }  // namespace nerfslam
