@@ -9,6 +9,11 @@ find_package(spdlog REQUIRED)
 find_package(nlohmann_json 3 REQUIRED)
 find_package(CLI11 REQUIRED)
 find_package(hwy REQUIRED)
+# libjpeg (libjpeg-turbo, the one OpenCV decodes with): corrupt JPEG data is found by decoding with
+# an error manager that turns libjpeg's warnings into errors (src/io/jpeg_check.cpp).
+find_package(JPEG REQUIRED)
+# zlib: a PNG's pixel data is inflated once to check it holds every row (src/io/image_header.cpp).
+find_package(ZLIB REQUIRED)
 # PCL only for point-cloud/mesh files (PLY/PCD); only the components we use, to keep VTK out.
 find_package(PCL 1.10 REQUIRED COMPONENTS common io)
 if(TARGET yaml-cpp::yaml-cpp AND NOT TARGET yaml-cpp)

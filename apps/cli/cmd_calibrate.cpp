@@ -7,6 +7,8 @@
 #include "command.h"
 #include "nerfslam/core/calibration.h"
 #include "nerfslam/core/camera.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 
 namespace {
 
@@ -34,6 +36,12 @@ nerfslam::cli::Registrar reg(
         const ChessboardSpec board = parseBoardSize(a->board, a->square);
         const DistortionModel model =
             a->model == "equidistant" ? DistortionModel::kEquidistant : DistortionModel::kRadTan;
+        // Before anything is read: --out must not be one of the photos it would overwrite.
+        std::error_code ec;
+        if (std::filesystem::is_directory(a->images, ec))
+          for (const auto& photo : listImageFiles(a->images))
+            if (sameFile(a->out, photo))
+              fail("calibrate: --out {} is one of the photos in --images; choose another output file", a->out);
         const CalibrationResult r = calibrateFromImages(a->images, board, model);
         for (const auto& im : r.images) {
           if (im.board_found)

@@ -9,6 +9,7 @@
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/eval/trajectory_metrics.h"
 #include "nerfslam/io/trajectory.h"
 
@@ -27,21 +28,15 @@ nerfslam::Trajectory load(const std::string& path, nerfslam::TrajectoryFormat fo
   std::size_t repeated = 0, first_repeated = 0;
   for (std::size_t i = 1; i < t.size(); ++i) {
     if (t[i].timestamp < t[i - 1].timestamp)
-      nerfslam::fail("{}: pose {} (timestamp {:.6f}) is before pose {} ({:.6f}): a trajectory must be in time order",
-                     path, i + 1, t[i].timestamp, i, t[i - 1].timestamp);
+      nerfslam::fail("{}: pose {} (timestamp {}) is before pose {} ({}): a trajectory must be in time order", path,
+                     i + 1, nerfslam::numberForMessage(t[i].timestamp), i,
+                     nerfslam::numberForMessage(t[i - 1].timestamp));
     if (t[i].timestamp == t[i - 1].timestamp && repeated++ == 0) first_repeated = i + 1;
   }
   if (repeated > 0)
     fmt::print(stderr, "warning: {}: {} pose(s) repeat the previous pose's timestamp (the first: pose {})\n", path,
                repeated, first_repeated);
   return t;
-}
-
-// True when `a` and `b` name the same file (both may not exist yet).
-bool sameFile(const std::string& a, const std::string& b) {
-  std::error_code ec1, ec2;
-  const auto ca = std::filesystem::weakly_canonical(a, ec1), cb = std::filesystem::weakly_canonical(b, ec2);
-  return !ec1 && !ec2 && ca == cb;
 }
 
 nerfslam::cli::Registrar reg(
@@ -76,8 +71,8 @@ nerfslam::cli::Registrar reg(
                    "Choose RPE pairs on the reference instead of the estimate");
       sub.add_option("--json", a->json, "Write the results as JSON to this file (atomically)");
       return [a]() -> int {
-        for (const std::string* input : {&a->ref, &a->est})
-          if (!a->json.empty() && sameFile(a->json, *input))
+        for (const std::string* input : {&a->ref, &a->est, &a->ref_times, &a->est_times})
+          if (!a->json.empty() && !input->empty() && nerfslam::sameFile(a->json, *input))
             nerfslam::fail("eval: --json {} is one of the inputs; choose another output file", a->json);
         const auto format = nerfslam::parseTrajectoryFormat(a->format);
         const nerfslam::Trajectory ref = load(a->ref, format, a->ref_times);

@@ -6,12 +6,12 @@
 #include <string>
 
 #include <spdlog/spdlog.h>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/io/image_io.h"
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/nerf/renderer.h"
 
@@ -24,11 +24,7 @@ struct RenderArgs {
   int threads = 2;
 };
 
-void writePng(const std::filesystem::path& path, const cv::Mat& img) {
-  AtomicOutput o(path);
-  if (!cv::imwrite(o.tempPath().string(), img)) fail("{}: cannot write image", path.string());
-  o.commit();
-}
+void writePng(const std::filesystem::path& path, const cv::Mat& img) { writeImageAtomic(path, img); }
 
 SE3 parsePose(const std::string& s) {
   std::istringstream in(s);

@@ -2,12 +2,12 @@
 #include <memory>
 
 #include <spdlog/spdlog.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include "command.h"
-#include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/parse.h"
+#include "nerfslam/io/image_io.h"
+#include "nerfslam/io/ply_header.h"
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/render/preview.h"
 
@@ -56,7 +56,10 @@ nerfslam::cli::Registrar reg(
           o.target = target;
         }
         PreviewScene scene;
-        for (const auto& p : a->points) scene.clouds.push_back(loadPointCloudPly(p));
+        for (const auto& p : a->points) {
+          checkPlyFile(p);  // counts the header declares against the file's size, before PCL allocates them
+          scene.clouds.push_back(loadPointCloudPly(p));
+        }
         for (size_t i = 0; i < a->trajectories.size(); ++i) {
           std::string file = a->trajectories[i];
           std::string color = kPalette[i % 8];
@@ -74,9 +77,7 @@ nerfslam::cli::Registrar reg(
         for (const auto& k : a->keyframes)
           for (const auto& e : readTumTrajectory(k)) scene.keyframes.push_back(e.pose);
         const cv::Mat img = renderPreview(scene, o);
-        AtomicOutput out(a->out);
-        if (!cv::imwrite(out.tempPath().string(), img)) fail("could not write '{}'", a->out);
-        out.commit();
+        writeImageAtomic(a->out, img);
         spdlog::info("render-preview: wrote {} ({}x{})", a->out, img.cols, img.rows);
         return 0;
       };

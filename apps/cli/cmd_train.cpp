@@ -11,7 +11,6 @@
 
 #include <spdlog/spdlog.h>
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
@@ -21,6 +20,7 @@
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/io/dataset.h"
+#include "nerfslam/io/image_io.h"
 #include "nerfslam/nerf/renderer.h"
 #include "nerfslam/nerf/trainer.h"
 #include "nerfslam/system/slam_system.h"
@@ -176,11 +176,8 @@ int runTrain(const TrainArgs& a) {
   if (evaluated && !split.test.empty())
     curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), final_eval.psnr);
 
-  for (size_t i = 0; i < renders.size(); ++i) {
-    AtomicOutput o(out / fmt::format("test_{:03d}_{}.png", i, split.test_names[i]));
-    if (!cv::imwrite(o.tempPath().string(), renders[i])) fail("{}: cannot write image", o.path().string());
-    o.commit();
-  }
+  for (size_t i = 0; i < renders.size(); ++i)
+    writeImageAtomic(out / fmt::format("test_{:03d}_{}.png", i, split.test_names[i]), renders[i]);
   writeStringAtomic(out / "psnr_curve.csv", curve.str());
   const auto& tt = trainer.totalTimes();
   nlohmann::json rep;

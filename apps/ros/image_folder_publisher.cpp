@@ -165,6 +165,10 @@ struct Outputs {
 std::unique_ptr<nerfslam::Dataset> openDataset(const Params& p) {
   nerfslam::DatasetOptions opts;
   if (!p.camera.empty()) opts.camera_override = p.camera;
+  // Frames are published every 1/~rate s: a folder without times.txt gets those times.
+  if (p.rate > 0) opts.fps = p.rate;
+  opts.fps_option = "~rate";
+  opts.camera_option = "~camera";
   opts.start = static_cast<size_t>(p.start);
   opts.max_frames = static_cast<size_t>(p.max_frames);
   std::unique_ptr<nerfslam::Dataset> ds;

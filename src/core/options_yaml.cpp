@@ -3,10 +3,12 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstdlib>
-#include <fstream>
 #include <map>
 #include <sstream>
 #include <vector>
+
+#include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 
 namespace nerfslam {
 
@@ -31,6 +33,8 @@ std::string didYouMean(const std::string& key, const std::vector<std::string>& c
   const std::string* best = nullptr;
   size_t best_d = limit + 1;
   for (const auto& c : candidates) {
+    // The distance is at least the difference in length (and a long key must not cost its square).
+    if (key.size() > c.size() + limit || c.size() > key.size() + limit) continue;
     const size_t d = editDistance(key, c);
     if (d < best_d) {
       best_d = d;
@@ -48,9 +52,6 @@ std::vector<std::string> yamlKeys(const YAML::Node& map) {
 }
 
 namespace {
-
-// A key as a message shows it: at most 60 characters.
-std::string cutForMessage(const std::string& s) { return s.size() <= 60 ? s : s.substr(0, 57) + "..."; }
 
 // yaml-cpp keeps every pair of a map whose key is given twice, and lookups find the first: refused
 // instead, naming both lines. Iterative (a fuzzed file may nest deeply).
@@ -80,19 +81,10 @@ void refuseDuplicateKeys(const YAML::Node& root, const std::filesystem::path& pa
 }  // namespace
 
 YAML::Node loadYamlFile(const std::filesystem::path& path) {
-  std::error_code dir_ec;
-  if (std::filesystem::is_directory(path, dir_ec)) fail("{}: is a directory, not a YAML file", path.string());
-  std::ifstream in(path);
-  if (!in) {
-    std::error_code ec;
-    if (!std::filesystem::exists(path, ec)) fail("{}: file not found", path.string());
-    fail("{}: cannot read file", path.string());
-  }
-  std::stringstream ss;
-  ss << in.rdbuf();
+  const std::string text = readInputFile(path, "YAML file", kMaxYamlFileBytes);
   YAML::Node root;
   try {
-    root = YAML::Load(ss.str());
+    root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     fail("{}: invalid YAML at line {}, column {}: {}", path.string(), e.mark.line + 1, e.mark.column + 1, e.msg);
   }
@@ -111,7 +103,7 @@ namespace options_detail {
 
 std::string describeNode(const YAML::Node& node) {
   if (!node || node.IsNull()) return "nothing (null)";
-  if (node.IsScalar()) return "'" + node.Scalar() + "'";
+  if (node.IsScalar()) return "'" + cutForMessage(node.Scalar()) + "'";
   if (node.IsSequence()) return "a list";
   if (node.IsMap()) return "a section (map)";
   return "an unknown node";

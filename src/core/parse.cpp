@@ -21,7 +21,7 @@ std::vector<double> parseNumberList(const std::string& text, const std::string& 
     char* stop = nullptr;
     const double d = std::strtod(item.c_str(), &stop);
     if (item.empty() || *stop != '\0' || !std::isfinite(d))
-      fail("{} '{}': '{}' is not a finite number", what, text, item);
+      fail("{} '{}': '{}' is not a finite number", what, cutForMessage(text), cutForMessage(item));
     v.push_back(d);
     start = end + 1;
   }
@@ -39,7 +39,7 @@ void parseImageSize(const std::string& text, const std::string& what, int min_si
     const auto r = std::from_chars(first, last, side[i]);  // digits only: no sign, no space
     ok = first != last && *first != '-' && r.ec == std::errc() && r.ptr == last;
   }
-  if (!ok) fail("{} '{}': expected WIDTHxHEIGHT, e.g. 640x480", what, text);
+  if (!ok) fail("{} '{}': expected WIDTHxHEIGHT, e.g. 640x480", what, cutForMessage(text));
   if (side[0] < min_side || side[1] < min_side || side[0] > kMaxSide || side[1] > kMaxSide)
     fail("{} {}: width and height must be in {}..{}", what, text, min_side, kMaxSide);
   *width = side[0];

@@ -67,8 +67,8 @@ void SequenceDataset::finish(std::vector<FrameEntry> frames, std::optional<Camer
          frames.size());
   for (size_t i = 1; i < kept.size(); ++i) {
     if (!(kept[i].timestamp > kept[i - 1].timestamp))
-      fail("{}: timestamp {:.9f} of frame {} is not after the previous frame's ({:.9f})", kept[i].image.string(),
-           kept[i].timestamp, i, kept[i - 1].timestamp);
+      fail("{}: timestamp {} of frame {} is not after the previous frame's ({})", kept[i].image.string(),
+           numberForMessage(kept[i].timestamp, 9), i, numberForMessage(kept[i - 1].timestamp, 9));
   }
   frames_ = std::move(kept);
   has_gt_ = std::any_of(frames_.begin(), frames_.end(), [](const FrameEntry& e) { return e.T_world_cam.has_value(); });
@@ -87,10 +87,10 @@ void SequenceDataset::finish(std::vector<FrameEntry> frames, std::optional<Camer
       camera_.height = first.rows;
     }
   } else {
-    fail("{}",
-         missing_camera_hint.empty()
-             ? fmt::format("{} dataset {}: no camera calibration; pass a camera YAML (--camera)", kind_, root_.string())
-             : missing_camera_hint);
+    fail("{}", missing_camera_hint.empty()
+                   ? fmt::format("{} dataset {}: no camera calibration; pass a camera YAML ({})", kind_, root_.string(),
+                                 opts.camera_option)
+                   : missing_camera_hint);
   }
   if (camera_.width != first.cols || camera_.height != first.rows)
     fail("{}: camera is {}x{} but the images are {}x{} (first image {})", source, camera_.width, camera_.height,
@@ -182,7 +182,7 @@ std::unique_ptr<Dataset> openDataset(const std::string& kind_in, const fs::path&
   if (kind == "middlebury") return io_detail::openMiddlebury(path, opts);
   if (kind == "strecha") return io_detail::openStrecha(path, opts);
   if (kind == "tsukuba") return io_detail::openTsukuba(path, opts);
-  fail("unknown dataset kind '{}' (valid kinds: {})", kind, kindList());
+  fail("unknown dataset kind '{}' (valid kinds: {})", cutForMessage(kind), kindList());
 }
 
 DatasetSpec parseDatasetSpec(const std::string& spec) {
@@ -194,7 +194,8 @@ DatasetSpec parseDatasetSpec(const std::string& spec) {
     const std::string kind = spec.substr(0, colon);
     if (std::all_of(kind.begin(), kind.end(), [](unsigned char c) { return std::isalnum(c) || c == '_'; })) {
       if (std::find(datasetKinds().begin(), datasetKinds().end(), kind) == datasetKinds().end())
-        fail("unknown dataset kind '{}' in '{}' (valid kinds: {})", kind, spec, kindList());
+        fail("unknown dataset kind '{}' in '{}' (valid kinds: {})", cutForMessage(kind), cutForMessage(spec),
+             kindList());
       const std::string path = spec.substr(colon + 1);
       if (path.empty()) fail("dataset spec '{}' has no path after '{}:'", spec, kind);
       return {kind, fs::path(path)};

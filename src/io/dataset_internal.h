@@ -106,8 +106,11 @@ std::optional<SE3> nearestPose(const std::vector<TimedPose>& traj, double t, dou
 std::optional<SE3> interpolatePose(const std::vector<TimedPose>& traj, double t, double tol);
 
 // Image file `stem` + one of the image extensions, when `stem` itself has none; std::nullopt when
-// no file exists.
+// no file exists; an Error naming the path when it is a directory.
 std::optional<fs::path> resolveImage(const fs::path& path);
+// "INDEX:LINE: image PATH not found" (or "... is a directory, not an image file") unless `image`
+// exists and is not a directory.
+void checkListedImage(const fs::path& image, const fs::path& index, size_t line);
 
 // Reads a YAML file that may start with OpenCV's "%YAML:1.0" directive (yaml-cpp rejects it).
 std::string readYamlText(const fs::path& file);

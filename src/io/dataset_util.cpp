@@ -3,21 +3,20 @@
 #include <cctype>
 #include <cmath>
 #include <cstdlib>
-#include <fstream>
 #include <sstream>
 
 #include "dataset_internal.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
+#include "nerfslam/core/options_yaml.h"
 #include "nerfslam/io/image_io.h"
 #include "nerfslam/io/trajectory.h"
 
 namespace nerfslam::io_detail {
 
 std::vector<Line> readDataLines(const fs::path& file) {
-  std::error_code ec;
-  if (!fs::is_regular_file(file, ec)) fail("{}: file not found", file.string());
-  std::ifstream in(file);
-  if (!in) fail("{}: cannot open file", file.string());
+  InputFile f = openInputFile(file);
+  std::istream& in = f.stream;
   std::vector<Line> out;
   std::string s;
   size_t n = 0;
@@ -31,7 +30,7 @@ std::vector<Line> readDataLines(const fs::path& file) {
     const auto e = std::find_if_not(s.rbegin(), s.rend(), blank).base();
     out.push_back({n, std::string(b, e)});
   }
-  if (in.bad()) fail("{}: read error", file.string());
+  checkReadable(in, file);
   return out;
 }
 
@@ -55,7 +54,7 @@ double parseNumber(const std::string& tok, const fs::path& file, size_t line, co
   char* e = nullptr;
   const double v = std::strtod(b, &e);
   if (tok.empty() || e != b + tok.size() || !std::isfinite(v))
-    fail("{}:{}: {} '{}' is not a finite number", file.string(), line, what, tok);
+    fail("{}:{}: {} '{}' is not a finite number", file.string(), line, what, cutForMessage(tok));
   return v;
 }
 
@@ -72,8 +71,8 @@ std::vector<double> parseNumbers(const Line& line, const fs::path& file, size_t 
 
 void checkIncreasing(double prev, double t, const fs::path& file, size_t line) {
   if (!(t > prev))
-    fail("{}:{}: timestamp {:.9f} is not after the previous one ({:.9f}); timestamps must increase", file.string(),
-         line, t, prev);
+    fail("{}:{}: timestamp {} is not after the previous one ({}); timestamps must increase", file.string(), line,
+         numberForMessage(t, 9), numberForMessage(prev, 9));
 }
 
 std::vector<TimedPose> checkedTimes(const Trajectory& traj, const fs::path& file) {
@@ -81,8 +80,8 @@ std::vector<TimedPose> checkedTimes(const Trajectory& traj, const fs::path& file
   out.reserve(traj.size());
   for (size_t i = 0; i < traj.size(); ++i) {
     if (i > 0 && !(traj[i].timestamp > traj[i - 1].timestamp))
-      fail("{}: data line {}: timestamp {:.9f} is not after the previous one ({:.9f}); timestamps must increase",
-           file.string(), i + 1, traj[i].timestamp, traj[i - 1].timestamp);
+      fail("{}: data line {}: timestamp {} is not after the previous one ({}); timestamps must increase", file.string(),
+           i + 1, numberForMessage(traj[i].timestamp, 9), numberForMessage(traj[i - 1].timestamp, 9));
     out.push_back({traj[i].timestamp, traj[i].pose});
   }
   return out;
@@ -113,21 +112,28 @@ std::optional<SE3> interpolatePose(const std::vector<TimedPose>& traj, double t,
 
 std::optional<fs::path> resolveImage(const fs::path& path) {
   std::error_code ec;
-  if (fs::is_regular_file(path, ec)) return path;
+  if (fs::is_directory(path, ec)) fail("{}: is a directory, not an image file", path.string());
+  if (fs::exists(path, ec)) return path;
   if (isImageExtension(path)) return std::nullopt;
   for (const char* ext : {".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}) {
     fs::path p = path;
     p += ext;
-    if (fs::is_regular_file(p, ec)) return p;
+    if (fs::is_directory(p, ec)) fail("{}: is a directory, not an image file", p.string());
+    if (fs::exists(p, ec)) return p;
   }
   return std::nullopt;
 }
 
-std::string readYamlText(const fs::path& file) {
+void checkListedImage(const fs::path& image, const fs::path& index, size_t line) {
   std::error_code ec;
-  if (!fs::is_regular_file(file, ec)) fail("{}: file not found", file.string());
-  std::ifstream in(file);
-  if (!in) fail("{}: cannot open file", file.string());
+  const fs::file_type type = fs::status(image, ec).type();
+  if (type == fs::file_type::not_found) fail("{}:{}: image {} not found", index.string(), line, image.string());
+  if (type == fs::file_type::directory)
+    fail("{}:{}: image {} is a directory, not an image file", index.string(), line, image.string());
+}
+
+std::string readYamlText(const fs::path& file) {
+  std::istringstream in(readInputFile(file, "YAML file", kMaxYamlFileBytes));
   std::ostringstream os;
   std::string s;
   bool first = true;

@@ -5,9 +5,12 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <utility>
 
 #include <fmt/format.h>
+#include <zlib.h>
 
+#include "nerfslam/core/crc32.h"
 #include "nerfslam/core/error.h"
 
 namespace nerfslam::io_detail {
@@ -93,6 +96,63 @@ std::string chunkName(const uint8_t* t) {
   return fmt::format("0x{:02x}{:02x}{:02x}{:02x}", t[0], t[1], t[2], t[3]);
 }
 
+// The bytes of filtered pixel rows (a filter byte, then the row) an IHDR declares: what the image's
+// zlib stream must inflate to. 0 when the IHDR is not one libpng accepts (the decoder says why).
+uint64_t pngRowBytes(const std::vector<uint8_t>& b) {
+  if (b.size() < 33 || std::memcmp(&b[12], "IHDR", 4) != 0) return 0;
+  const uint64_t w = be32(&b[16]), h = be32(&b[20]);
+  const int depth = b[24], color = b[25], interlace = b[28];
+  const int channels = color == 0 ? 1 : color == 2 ? 3 : color == 3 ? 1 : color == 4 ? 2 : color == 6 ? 4 : 0;
+  if (channels == 0 || (depth != 1 && depth != 2 && depth != 4 && depth != 8 && depth != 16) || interlace > 1) return 0;
+  const uint64_t bits = uint64_t(channels) * uint64_t(depth);
+  auto rows = [&](uint64_t pw, uint64_t ph) { return pw == 0 || ph == 0 ? 0 : ph * (1 + (pw * bits + 7) / 8); };
+  if (interlace == 0) return rows(w, h);
+  // Adam7: the seven passes' first column and row and their steps.
+  static const int kPass[7][4] = {{0, 0, 8, 8}, {4, 0, 8, 8}, {0, 4, 4, 8}, {2, 0, 4, 4},
+                                  {0, 2, 2, 4}, {1, 0, 2, 2}, {0, 1, 1, 2}};
+  uint64_t total = 0;
+  for (const auto& p : kPass) {
+    const uint64_t pw = w > uint64_t(p[0]) ? (w - p[0] + p[2] - 1) / p[2] : 0;
+    const uint64_t ph = h > uint64_t(p[1]) ? (h - p[1] + p[3] - 1) / p[3] : 0;
+    total += rows(pw, ph);
+  }
+  return total;
+}
+
+// Inflates the IDAT chunks (to a scratch buffer, not kept) and refuses data that does not decompress
+// or holds fewer rows than the header declares: libpng reports the latter only on stderr, or as a
+// "benign" error OpenCV lets pass, and a PNG cut short and re-terminated with IEND has valid chunks.
+void checkPngPixelData(const std::vector<uint8_t>& b, const std::vector<std::pair<size_t, size_t>>& idat,
+                       const std::string& path) {
+  const uint64_t expected = pngRowBytes(b);
+  if (expected == 0) return;
+  if (idat.empty()) fail("{}: corrupt PNG image: no IDAT chunk (no pixel data)", path);
+  z_stream z{};
+  if (inflateInit(&z) != Z_OK) fail("{}: cannot check the PNG image: zlib failed to start", path);
+  std::vector<uint8_t> out(1 << 16);
+  uint64_t total = 0;
+  int ret = Z_OK;
+  std::string error;
+  for (const auto& [offset, length] : idat) {
+    z.next_in = const_cast<Bytef*>(b.data() + offset);
+    z.avail_in = static_cast<uInt>(length);
+    do {
+      z.next_out = out.data();
+      z.avail_out = static_cast<uInt>(out.size());
+      ret = inflate(&z, Z_NO_FLUSH);
+      total += out.size() - z.avail_out;
+      if (ret == Z_NEED_DICT || ret == Z_DATA_ERROR || ret == Z_MEM_ERROR || ret == Z_STREAM_ERROR)
+        error = z.msg ? z.msg : "error " + std::to_string(ret);
+    } while (error.empty() && ret != Z_STREAM_END && total < expected && (z.avail_in > 0 || z.avail_out == 0));
+    if (!error.empty() || ret == Z_STREAM_END || total >= expected) break;
+  }
+  inflateEnd(&z);
+  if (!error.empty()) fail("{}: corrupt PNG image: its pixel data does not decompress (zlib: {})", path, error);
+  if (total < expected)
+    fail("{}: truncated PNG image: its pixel data holds {} of the {} bytes of rows its header declares", path, total,
+         expected);
+}
+
 }  // namespace
 
 const char* imageFormatName(ImageFormat f) {
@@ -147,6 +207,7 @@ std::optional<ImageHeader> sniffImageHeader(const std::vector<uint8_t>& b) {
 
 void checkImageComplete(const std::vector<uint8_t>& b, ImageFormat format, const std::string& path) {
   if (format == ImageFormat::kPng) {
+    std::vector<std::pair<size_t, size_t>> idat;  // offset and length of each IDAT chunk's data
     size_t i = 8;  // after the signature: length (4, big-endian), type (4), data (length), CRC (4)
     while (true) {
       if (b.size() - i < 12) fail("{}: truncated PNG image (no IEND chunk; {} bytes)", path, b.size());
@@ -154,9 +215,14 @@ void checkImageComplete(const std::vector<uint8_t>& b, ImageFormat format, const
       if (n > b.size() - i - 12)
         fail("{}: truncated PNG image: chunk '{}' at byte {} declares {} bytes but only {} follow", path,
              chunkName(&b[i + 4]), i, n, b.size() - i - 12);
-      if (std::memcmp(&b[i + 4], "IEND", 4) == 0) return;
+      if (crc32(&b[i + 4], 4 + size_t{n}) != be32(&b[i + 8 + n]))
+        fail("{}: corrupt PNG image: chunk '{}' at byte {} fails its CRC check", path, chunkName(&b[i + 4]), i);
+      if (std::memcmp(&b[i + 4], "IDAT", 4) == 0) idat.emplace_back(i + 8, n);
+      if (std::memcmp(&b[i + 4], "IEND", 4) == 0) break;
       i += 12 + size_t{n};
     }
+    checkPngPixelData(b, idat, path);
+    return;
   }
   if (format == ImageFormat::kJpeg) {
     const size_t window = std::min<size_t>(b.size(), 65536);

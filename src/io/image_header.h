@@ -27,6 +27,13 @@ std::optional<ImageHeader> sniffImageHeader(const std::vector<uint8_t>& b);
 // that follow (libpng would allocate and clear a declared 1 GB text chunk before finding the file
 // short). JPEG: EOI (FF D9, possibly followed by padding or an appended trailer; searched in the
 // last 64 KiB). Other formats pass. Throws Error naming `path`.
+// PNG: each chunk's CRC is checked too (a flipped byte anywhere in the file).
 void checkImageComplete(const std::vector<uint8_t>& b, ImageFormat format, const std::string& path);
+
+// Decodes the JPEG's entropy data with libjpeg (at 1/8 scale) and throws an Error naming `path` on
+// a warning that means damaged pixels ("corrupt JPEG image: Corrupt JPEG data: premature end of data
+// segment", "... bad Huffman code", "... N extraneous bytes before marker 0xd9") or a decoding error
+// (jpeg_check.cpp).
+void checkJpegData(const std::vector<uint8_t>& b, const std::string& path);
 
 }  // namespace nerfslam::io_detail

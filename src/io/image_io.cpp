@@ -10,7 +10,9 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "image_header.h"
+#include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 
 namespace nerfslam {
 
@@ -21,16 +23,14 @@ namespace {
 // Larger than any camera we know (16384 per side, 64 megapixels: 3 bytes a pixel is 192 MB).
 constexpr int64_t kMaxImageSide = 16384;
 constexpr int64_t kMaxImagePixels = int64_t{64} << 20;
+// The largest image file: 64 megapixels of 16-bit RGBA uncompressed are 512 MiB.
+constexpr uint64_t kMaxImageFileBytes = uint64_t{1} << 30;
 
 }  // namespace
 
 cv::Mat readImage(const fs::path& path, ImageMode mode) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) fail("{}: image file not found", path.string());
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot open image file", path.string());
-  std::vector<uchar> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) fail("{}: read error", path.string());
+  const std::string data = readInputFile(path, "image file", kMaxImageFileBytes);
+  const std::vector<uchar> bytes(data.begin(), data.end());
   if (bytes.empty()) fail("{}: empty image file", path.string());
   const auto header = io_detail::sniffImageHeader(bytes);
   if (!header) fail("{}: not a readable image (unknown format: PNG, JPEG, BMP, TIFF or PNM expected)", path.string());
@@ -40,6 +40,7 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
          path.string(), io_detail::imageFormatName(header->format), header->width, header->height, kMaxImageSide,
          kMaxImagePixels >> 20);
   io_detail::checkImageComplete(bytes, header->format, path.string());
+  if (header->format == io_detail::ImageFormat::kJpeg) io_detail::checkJpegData(bytes, path.string());
   int flags = cv::IMREAD_GRAYSCALE;
   if (mode == ImageMode::kColor) flags = cv::IMREAD_COLOR;
   if (mode == ImageMode::kUnchanged) flags = cv::IMREAD_UNCHANGED;
@@ -49,8 +50,22 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
   } catch (const cv::Exception& e) {
     fail("{}: cannot decode image: {}", path.string(), e.what());
   }
-  if (image.empty()) fail("{}: not a readable image (unknown format or corrupt data)", path.string());
+  if (image.empty())
+    fail("{}: corrupt {} image (the decoder could not read its data)", path.string(),
+         io_detail::imageFormatName(header->format));
   return image;
+}
+
+void writeImageAtomic(const fs::path& path, const cv::Mat& image, const std::vector<int>& params) {
+  std::vector<uchar> bytes;
+  bool ok = false;
+  try {
+    ok = cv::imencode(path.extension().string(), image, bytes, params);
+  } catch (const cv::Exception& e) {
+    fail("{}: cannot encode the image: {}", path.string(), e.what());
+  }
+  if (!ok) fail("{}: cannot encode the image (unknown extension or unsupported pixel type)", path.string());
+  writeStringAtomic(path, std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
 }
 
 bool isImageExtension(const fs::path& path) {

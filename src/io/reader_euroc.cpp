@@ -92,12 +92,13 @@ std::unique_ptr<Dataset> openEuroc(const fs::path& root, const DatasetOptions& o
   std::vector<FrameEntry> frames;
   for (const Line& l : readDataLines(csv)) {
     const auto toks = splitTokens(l.text, true);
-    if (toks.size() < 2) fail("{}:{}: expected 'timestamp [ns],filename', found '{}'", csv.string(), l.number, l.text);
+    if (toks.size() < 2)
+      fail("{}:{}: expected 'timestamp [ns],filename', found '{}'", csv.string(), l.number, cutForMessage(l.text));
     // Nanoseconds as a double keep ~0.3 us precision at current epoch times: ample for association.
     FrameEntry e;
     e.timestamp = parseNumber(toks[0], csv, l.number, "timestamp [ns]") * 1e-9;
     e.image = cam_dir / "data" / toks[1];
-    if (!fs::is_regular_file(e.image, ec)) fail("{}:{}: image {} not found", csv.string(), l.number, e.image.string());
+    checkListedImage(e.image, csv, l.number);
     if (!frames.empty()) checkIncreasing(frames.back().timestamp, e.timestamp, csv, l.number);
     frames.push_back(std::move(e));
   }
@@ -111,11 +112,11 @@ std::unique_ptr<Dataset> openEuroc(const fs::path& root, const DatasetOptions& o
   std::vector<TimedPose> traj;
   fs::path gt_file;
   bool interpolate = false;
-  if (fs::is_regular_file(gt_csv, ec)) {
+  if (fs::exists(gt_csv, ec)) {
     traj = checkedTimes(readEurocTrajectory(gt_csv), gt_csv);
     gt_file = gt_csv;
     interpolate = true;
-  } else if (fs::is_regular_file(gt_tum, ec)) {
+  } else if (fs::exists(gt_tum, ec)) {
     traj = checkedTimes(readTumTrajectory(gt_tum), gt_tum);
     gt_file = gt_tum;
   }

@@ -19,7 +19,7 @@ std::unique_ptr<Dataset> openFolder(const fs::path& root, const DatasetOptions& 
   std::error_code ec;
   fs::path times_file;
   for (const char* n : {"times.txt", "timestamps.txt"})
-    if (times_file.empty() && fs::is_regular_file(root / n, ec)) times_file = root / n;
+    if (times_file.empty() && fs::exists(root / n, ec)) times_file = root / n;  // a directory: refused by name
   if (!times_file.empty()) {
     const auto lines = readDataLines(times_file);
     if (lines.size() != images.size())
@@ -33,15 +33,19 @@ std::unique_ptr<Dataset> openFolder(const fs::path& root, const DatasetOptions& 
   } else if (opts.fps > 0) {
     for (size_t i = 0; i < frames.size(); ++i) frames[i].timestamp = static_cast<double>(i) / opts.fps;
   } else {
-    fail("{}: no times.txt or timestamps.txt in the folder; give the frame rate (--fps)", root.string());
+    fail(
+        "{}: no times.txt or timestamps.txt in the folder; give the frame rate ({}) or add times.txt (one time in "
+        "seconds per line, a line per image in the images' order)",
+        root.string(), opts.fps_option);
   }
 
   std::optional<Camera> cam;
   const fs::path cam_file = root / "camera.yaml";
-  if (!opts.camera_override && fs::is_regular_file(cam_file, ec)) cam = loadCameraYaml(cam_file);
+  if (!opts.camera_override && fs::exists(cam_file, ec)) cam = loadCameraYaml(cam_file);
   auto ds = std::make_unique<SequenceDataset>("folder", root);
   ds->finish(std::move(frames), cam, cam_file.string(), opts,
-             fmt::format("{}: no camera.yaml in the image folder; give a camera YAML (--camera)", root.string()));
+             fmt::format("{}: no camera.yaml in the image folder; give a camera YAML ({})", root.string(),
+                         opts.camera_option));
   return ds;
 }
 

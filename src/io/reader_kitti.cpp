@@ -68,7 +68,7 @@ std::unique_ptr<Dataset> openKitti(const fs::path& root, const DatasetOptions& o
     candidates.push_back(root / ".." / ".." / "poses" / (seq + ".txt"));
   }
   for (const fs::path& gt : candidates) {
-    if (!fs::is_regular_file(gt, ec)) continue;
+    if (!fs::exists(gt, ec)) continue;
     const Trajectory traj = readKittiTrajectory(gt);
     if (traj.size() != frames.size())
       fail("{}: {} poses for {} frames in {}; there must be one pose per frame", gt.string(), traj.size(),

@@ -11,12 +11,12 @@
 // (seconds) when every frame has one, else index / 30 (or / DatasetOptions::fps).
 // Per-frame intrinsics (instant-ngp allows them) must match the global ones: one camera per dataset.
 #include <cmath>
-#include <fstream>
 
 #include <nlohmann/json.hpp>
 
 #include "dataset_internal.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/io/image_io.h"
 
 namespace nerfslam::io_detail {
@@ -40,15 +40,12 @@ std::unique_ptr<Dataset> openTransforms(const fs::path& path, const DatasetOptio
   fs::path file = path;
   if (fs::is_directory(path, ec)) {
     file = path / "transforms.json";
-    if (!fs::is_regular_file(file, ec)) file = path / "transforms_train.json";
-    if (!fs::is_regular_file(file, ec))
-      fail("{}: no transforms.json or transforms_train.json in the folder", path.string());
+    if (!fs::exists(file, ec)) file = path / "transforms_train.json";
+    if (!fs::exists(file, ec)) fail("{}: no transforms.json or transforms_train.json in the folder", path.string());
   }
-  std::ifstream in(file);
-  if (!in) fail("{}: cannot open file", file.string());
   json j;
   try {
-    j = json::parse(in);
+    j = json::parse(readInputFile(file, "transforms.json file"));
   } catch (const json::exception& e) {
     fail("{}: JSON syntax error: {}", file.string(), e.what());
   }

@@ -40,7 +40,7 @@ std::unique_ptr<Dataset> openTsukuba(const fs::path& root, const DatasetOptions&
   std::optional<Camera> cam;
   std::string source;
   const fs::path intr = root / "intrinsics.txt";
-  if (!opts.camera_override && fs::is_regular_file(intr, ec)) {
+  if (!opts.camera_override && fs::exists(intr, ec)) {
     std::optional<std::vector<double>> nums;
     for (const Line& l : readDataLines(intr)) {
       const auto toks = splitTokens(l.text);
@@ -58,7 +58,7 @@ std::unique_ptr<Dataset> openTsukuba(const fs::path& root, const DatasetOptions&
   }
   auto ds = std::make_unique<SequenceDataset>("tsukuba", root);
   ds->finish(std::move(frames), cam, source, opts,
-             fmt::format("{}: no intrinsics.txt; give a camera YAML (--camera)", root.string()));
+             fmt::format("{}: no intrinsics.txt; give a camera YAML ({})", root.string(), opts.camera_option));
   return ds;
 }
 

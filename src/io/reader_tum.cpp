@@ -59,19 +59,19 @@ std::unique_ptr<Dataset> openTum(const fs::path& root, const DatasetOptions& opt
   std::error_code ec;
   for (const Line& l : readDataLines(rgb_file)) {
     const auto toks = splitTokens(l.text);
-    if (toks.size() < 2) fail("{}:{}: expected 'timestamp filename', found '{}'", rgb_file.string(), l.number, l.text);
+    if (toks.size() < 2)
+      fail("{}:{}: expected 'timestamp filename', found '{}'", rgb_file.string(), l.number, cutForMessage(l.text));
     FrameEntry e;
     e.timestamp = parseNumber(toks[0], rgb_file, l.number, "timestamp");
     e.image = root / toks[1];
-    if (!fs::is_regular_file(e.image, ec))
-      fail("{}:{}: image {} not found", rgb_file.string(), l.number, e.image.string());
+    checkListedImage(e.image, rgb_file, l.number);
     if (!frames.empty()) checkIncreasing(frames.back().timestamp, e.timestamp, rgb_file, l.number);
     frames.push_back(std::move(e));
   }
   if (frames.empty()) fail("{}: no frames listed", rgb_file.string());
 
   const fs::path gt_file = root / "groundtruth.txt";
-  if (fs::is_regular_file(gt_file, ec)) {
+  if (fs::exists(gt_file, ec)) {
     const auto traj = checkedTimes(readTumTrajectory(gt_file), gt_file);
     size_t n = 0;
     for (auto& f : frames) {
@@ -87,7 +87,7 @@ std::unique_ptr<Dataset> openTum(const fs::path& root, const DatasetOptions& opt
   std::string source;
   const fs::path cam_file = root / "camera.yaml";
   if (!opts.camera_override) {
-    if (fs::is_regular_file(cam_file, ec)) {
+    if (fs::exists(cam_file, ec)) {
       cam = loadCameraYaml(cam_file);
       source = cam_file.string();
     } else if (int k = freiburgNumber(root)) {
@@ -98,8 +98,8 @@ std::unique_ptr<Dataset> openTum(const fs::path& root, const DatasetOptions& opt
   auto ds = std::make_unique<SequenceDataset>("tum", root);
   ds->finish(std::move(frames), cam, source, opts,
              fmt::format("{}: no camera.yaml in the folder and the folder name does not name freiburg1/2/3; "
-                         "give a camera YAML (--camera)",
-                         root.string()));
+                         "give a camera YAML ({})",
+                         root.string(), opts.camera_option));
   return ds;
 }
 

@@ -12,6 +12,7 @@
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 
 namespace nerfslam {
 namespace fs = std::filesystem;
@@ -33,11 +34,8 @@ std::string pathString(const fs::path& p) { return p.string(); }
 
 // Splits every non-blank, non-comment line into tokens separated by spaces, tabs and commas.
 std::vector<DataLine> readDataLines(const fs::path& path) {
-  std::error_code ec;
-  if (fs::is_directory(path, ec))
-    throw Error(fmt::format("{}: is a directory, not a trajectory file", pathString(path)));
-  std::ifstream is(path);
-  if (!is) throw Error(fmt::format("{}: cannot open trajectory file: {}", pathString(path), std::strerror(errno)));
+  InputFile f = openInputFile(path, "trajectory file");
+  std::istream& is = f.stream;
   std::vector<DataLine> lines;
   std::string line;
   size_t line_no = 0;
@@ -66,7 +64,7 @@ std::vector<DataLine> readDataLines(const fs::path& path) {
     if (!cur.empty()) dl.tokens.push_back(std::move(cur));
     lines.push_back(std::move(dl));
   }
-  if (is.bad()) throw Error(fmt::format("{}: read error", pathString(path)));
+  checkReadable(is, path);
   return lines;
 }
 
@@ -88,9 +86,10 @@ std::vector<double> parseNumbers(const fs::path& path, const DataLine& dl, size_
   std::vector<double> v(dl.tokens.size());
   for (size_t i = 0; i < dl.tokens.size(); ++i) {
     const auto d = toDouble(dl.tokens[i]);
-    if (!d) lineError(path, dl.line_no, fmt::format("column {}: '{}' is not a number", i + 1, dl.tokens[i]));
+    if (!d)
+      lineError(path, dl.line_no, fmt::format("column {}: '{}' is not a number", i + 1, cutForMessage(dl.tokens[i])));
     if (!std::isfinite(*d))
-      lineError(path, dl.line_no, fmt::format("column {}: '{}' is not finite", i + 1, dl.tokens[i]));
+      lineError(path, dl.line_no, fmt::format("column {}: '{}' is not finite", i + 1, cutForMessage(dl.tokens[i])));
     v[i] = *d;
   }
   return v;

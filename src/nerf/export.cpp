@@ -2,11 +2,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <string>
+#include <type_traits>
 #include <unordered_map>
 
+#include <fmt/format.h>
+#include <pcl/common/io.h>
 #include <pcl/conversions.h>
-#include <pcl/io/pcd_io.h>
-#include <pcl/io/ply_io.h>
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
@@ -261,22 +264,116 @@ pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& opt) {
   return mesh;
 }
 
+namespace {
+
+// Little-endian bytes of a float or an integer (the PLY and PCD files below are little-endian).
+template <class T>
+void putLe(std::string& out, T v) {
+  static_assert(std::is_trivially_copyable_v<T>);
+  char b[sizeof(T)];
+  std::memcpy(b, &v, sizeof(T));
+  if constexpr (sizeof(T) > 1) {
+    const uint16_t probe = 1;
+    if (*reinterpret_cast<const uint8_t*>(&probe) == 0) std::reverse(b, b + sizeof(T));
+  }
+  out.append(b, sizeof(T));
+}
+
+// The vertices of a binary PLY: x y z as float, red green blue as uchar (15 bytes each).
+void putVertex(std::string& out, float x, float y, float z, uint8_t r, uint8_t g, uint8_t b) {
+  putLe(out, x);
+  putLe(out, y);
+  putLe(out, z);
+  out.push_back(char(r));
+  out.push_back(char(g));
+  out.push_back(char(b));
+}
+
+constexpr const char* kVertexProperties =
+    "property float x\nproperty float y\nproperty float z\n"
+    "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+
+// Written in memory, then by writeStringAtomic, whose every write is checked: a full disk is an Error
+// naming the file and leaves no cut-off file (PCL's writers return success without checking theirs).
+void writeCloudPly(const pcl::PointCloud<pcl::PointXYZRGB>& cloud, const std::filesystem::path& path) {
+  std::string out = fmt::format(
+      "ply\nformat binary_little_endian 1.0\ncomment nerfslam NeRF point cloud (world coordinates)\n"
+      "element vertex {}\n{}end_header\n",
+      cloud.size(), kVertexProperties);
+  out.reserve(out.size() + 15 * cloud.size());
+  for (const auto& p : cloud.points) putVertex(out, p.x, p.y, p.z, p.r, p.g, p.b);
+  writeStringAtomic(path, out);
+}
+
+// PCD v0.7 as PCL writes it for PointXYZRGB: x y z rgb, rgb a float holding 0x00RRGGBB (PCL matches
+// fields by type too, so rgb stays TYPE F to load back into a PointXYZRGB).
+void writeCloudPcd(const pcl::PointCloud<pcl::PointXYZRGB>& cloud, const std::filesystem::path& path) {
+  std::string out = fmt::format(
+      "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\n"
+      "COUNT 1 1 1 1\nWIDTH {}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {}\nDATA binary\n",
+      cloud.size(), cloud.size());
+  out.reserve(out.size() + 16 * cloud.size());
+  for (const auto& p : cloud.points) {
+    putLe(out, p.x);
+    putLe(out, p.y);
+    putLe(out, p.z);
+    putLe(out, uint32_t(p.r) << 16 | uint32_t(p.g) << 8 | uint32_t(p.b));
+  }
+  writeStringAtomic(path, out);
+}
+
+}  // namespace
+
 void savePointCloud(const pcl::PointCloud<pcl::PointXYZRGB>& cloud, const std::filesystem::path& path) {
   const std::string ext = path.extension().string();
   if (ext != ".ply" && ext != ".pcd") fail("{}: point clouds are written as .ply or .pcd", path.string());
   if (cloud.empty()) fail("{}: the point cloud is empty (nothing above the density threshold)", path.string());
-  AtomicOutput out(path);
-  const int rc = ext == ".ply" ? pcl::io::savePLYFileBinary(out.tempPath().string(), cloud)
-                               : pcl::io::savePCDFileBinary(out.tempPath().string(), cloud);
-  if (rc != 0) fail("{}: cannot write point cloud", path.string());
-  out.commit();
+  if (ext == ".ply")
+    writeCloudPly(cloud, path);
+  else
+    writeCloudPcd(cloud, path);
 }
 
 void saveMesh(const pcl::PolygonMesh& mesh, const std::filesystem::path& path) {
   if (mesh.polygons.empty()) fail("{}: the mesh is empty (no surface at the density threshold)", path.string());
-  AtomicOutput out(path);
-  if (pcl::io::savePLYFileBinary(out.tempPath().string(), mesh) != 0) fail("{}: cannot write mesh", path.string());
-  out.commit();
+  // Vertices with colours (extractMesh's), or positions only.
+  const bool colours = std::any_of(mesh.cloud.fields.begin(), mesh.cloud.fields.end(),
+                                   [](const pcl::PCLPointField& f) { return f.name == "rgb" || f.name == "rgba"; });
+  pcl::PointCloud<pcl::PointXYZRGB> v;
+  if (colours) {
+    pcl::fromPCLPointCloud2(mesh.cloud, v);
+  } else {
+    pcl::PointCloud<pcl::PointXYZ> xyz;
+    pcl::fromPCLPointCloud2(mesh.cloud, xyz);
+    pcl::copyPointCloud(xyz, v);
+  }
+  std::string out = fmt::format(
+      "ply\nformat binary_little_endian 1.0\ncomment nerfslam NeRF mesh (world coordinates)\n"
+      "element vertex {}\n{}element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+      v.size(), colours ? kVertexProperties : "property float x\nproperty float y\nproperty float z\n",
+      mesh.polygons.size());
+  out.reserve(out.size() + 15 * v.size() + 13 * mesh.polygons.size());
+  for (const auto& p : v.points) {
+    if (colours) {
+      putVertex(out, p.x, p.y, p.z, p.r, p.g, p.b);
+    } else {
+      putLe(out, p.x);
+      putLe(out, p.y);
+      putLe(out, p.z);
+    }
+  }
+  for (size_t f = 0; f < mesh.polygons.size(); ++f) {
+    const auto& idx = mesh.polygons[f].vertices;
+    if (idx.size() > 255)
+      fail("{}: face {} has {} vertices (at most 255 in this format)", path.string(), f, idx.size());
+    out.push_back(char(idx.size()));
+    for (const auto i : idx) {
+      if (i < 0 || size_t(i) >= v.size())
+        fail("{}: face {} names vertex {} of {}", path.string(), f, static_cast<long long>(i), v.size());
+      putLe(out, int32_t(i));
+    }
+  }
+  writeStringAtomic(path, out);
 }
 
 }  // namespace nerfslam::nerf

@@ -3,19 +3,24 @@
 #include <array>
 #include <cmath>
 #include <cstring>
-#include <fstream>
+#include <limits>
 
 #include <nlohmann/json.hpp>
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/crc32.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
+#include "nerfslam/nerf/hash_grid.h"
 
 namespace nerfslam::nerf {
 namespace {
 
 constexpr char kMagic[8] = {'N', 'E', 'R', 'F', 'S', 'L', 'A', 'M'};
 constexpr uint32_t kByteOrderMark = 0x01020304u;
+// The JSON header of a model is a few KB (the field's configuration, the scene box, the arrays' names
+// and sizes).
+constexpr uint64_t kMaxModelHeaderBytes = 16 << 20;
 
 // Visitors over option structs (FieldConfig, AdamOptions) to and from JSON.
 struct ToJson {
@@ -179,15 +184,27 @@ void saveModel(NerfModel& model, const std::filesystem::path& path, const SaveOp
 
 NerfModel loadModel(const std::filesystem::path& path) {
   const std::string file = path.string();
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot open model file", file);
-  in.seekg(0, std::ios::end);
-  const auto size = size_t(in.tellg());
-  in.seekg(0);
+  InputFile in = openInputFile(path, "NeRF model file");
+  // Read in steps, each size declared by what came before checked against the file's size (or, for a
+  // pipe, taken as it arrives) before anything of that size is allocated.
+  std::vector<char> buf;
+  auto readMore = [&](uint64_t n) {
+    while (n > 0 && in.stream) {
+      const size_t k = size_t(std::min<uint64_t>(n, 1 << 24));
+      const size_t old = buf.size();
+      buf.resize(old + k);
+      in.stream.read(buf.data() + old, std::streamsize(k));
+      const auto got = size_t(in.stream.gcount());
+      buf.resize(old + got);
+      n -= got;
+      if (got < k) break;
+    }
+    checkReadable(in.stream, path);
+  };
   constexpr size_t kFixed = 8 + 4 + 4 + 8;
-  if (size < kFixed + 4) fail("{}: not a nerfslam model (file too short: {} bytes)", file, size);
-  std::vector<char> buf(size);
-  if (!in.read(buf.data(), std::streamsize(size))) fail("{}: read error", file);
+  readMore(kFixed);
+  if (buf.size() < kFixed || (in.size && *in.size < kFixed + 4))
+    fail("{}: not a nerfslam model (file too short: {} bytes)", file, in.size.value_or(buf.size()));
   if (std::memcmp(buf.data(), kMagic, 8) != 0)
     fail("{}: not a nerfslam model (bad magic; expected \"NERFSLAM\")", file);
   uint32_t version, bom;
@@ -199,23 +216,44 @@ NerfModel loadModel(const std::filesystem::path& path) {
   if (version != 1 && version != kModelFormatVersion)
     fail("{}: unsupported model format version {} (this build reads versions 1 to {})", file, version,
          kModelFormatVersion);
-  if (hlen > size - kFixed - 4) fail("{}: truncated model file (header of {} bytes, file {} bytes)", file, hlen, size);
+  if (in.size && hlen > *in.size - kFixed - 4)
+    fail("{}: truncated model file (header of {} bytes, file {} bytes)", file, hlen, *in.size);
+  if (hlen > kMaxModelHeaderBytes)
+    fail("{}: corrupt model header: it declares {} bytes, more than the {} a model header may have", file, hlen,
+         formatBytes(kMaxModelHeaderBytes));
+  readMore(hlen);
+  if (buf.size() < kFixed + hlen)
+    fail("{}: truncated model file (header of {} bytes, file {} bytes)", file, hlen, buf.size());
   nlohmann::json h;
   try {
     h = nlohmann::json::parse(buf.begin() + long(kFixed), buf.begin() + long(kFixed + hlen));
   } catch (const std::exception& e) {
     fail("{}: corrupt model header: {}", file, e.what());
   }
-  // Expected total size from the header, to tell truncation apart from corruption.
-  size_t data_bytes = 0;
+  // Expected total size from the header, to tell truncation apart from corruption. Each array must
+  // fit in what the file has after the header (a pipe: in what the format can hold).
+  const uint64_t room = in.size ? *in.size - kFixed - hlen - 4 : std::numeric_limits<uint64_t>::max() / 2;
+  uint64_t data_bytes = 0;
   try {
-    for (const auto& a : h.at("arrays")) data_bytes += a.at("count").get<size_t>() * 4;
-  } catch (const std::exception& e) {
+    for (const auto& a : h.at("arrays")) {
+      const auto count = a.at("count").get<uint64_t>();
+      if (count > (room - data_bytes) / 4)
+        fail("{}: truncated model file: array {} declares {} values of 4 bytes, but only {} bytes follow", file,
+             cutForMessage(a.value("name", nlohmann::json()).dump()), count, room - data_bytes);
+      data_bytes += count * 4;
+    }
+  } catch (const nlohmann::json::exception& e) {
     fail("{}: corrupt model header: {}", file, e.what());
   }
-  const size_t expected = kFixed + hlen + data_bytes + 4;
-  if (size < expected) fail("{}: truncated model file ({} bytes, expected {})", file, size, expected);
-  if (size > expected) fail("{}: corrupt model file ({} trailing bytes)", file, size - expected);
+  const uint64_t expected = kFixed + hlen + data_bytes + 4;
+  if (in.size && *in.size < expected)
+    fail("{}: truncated model file ({} bytes, expected {})", file, *in.size, expected);
+  if (in.size && *in.size > expected) fail("{}: corrupt model file ({} trailing bytes)", file, *in.size - expected);
+  if (in.size) buf.reserve(size_t(expected));
+  readMore(expected - buf.size() + 1);  // one byte more: none may follow
+  if (buf.size() < expected) fail("{}: truncated model file ({} bytes, expected {})", file, buf.size(), expected);
+  if (buf.size() > expected) fail("{}: corrupt model file (bytes after the {} expected)", file, expected);
+  const size_t size = buf.size();
   uint32_t stored;
   std::memcpy(&stored, buf.data() + size - 4, 4);
   if (crc32(buf.data(), size - 4) != stored) fail("{}: checksum mismatch: the model file is corrupted", file);
@@ -235,17 +273,42 @@ NerfModel loadModel(const std::filesystem::path& path) {
     if (h.at("grid").at("resolution").get<int>() != OccupancyGrid::kRes)
       throw fieldError(file, "grid.resolution", "unsupported occupancy grid resolution");
     m.training_steps = h.at("training_steps").get<uint64_t>();
+    // What the header's configuration makes is allocated below: its parameters must be among the
+    // arrays the file holds (a header that asks for gigabytes in a small file is refused here).
+    auto mustHold = [&](const char* field, uint64_t bytes) {
+      if (bytes > data_bytes)
+        throw fieldError(file, field,
+                         fmt::format("declares {} of parameters, but the file's arrays hold {}", formatBytes(bytes),
+                                     formatBytes(data_bytes)));
+    };
+    try {
+      validate(m.field_config);
+    } catch (const Error& e) {
+      fail("{}: {}", file, e.what());
+    }
+    const auto levels = gridLevels(m.field_config.n_levels, m.field_config.base_resolution,
+                                   m.field_config.finest_resolution, m.field_config.log2_hashmap_size);
+    mustHold("header.field_config", (uint64_t(levels.back().offset) + levels.back().size) * 2 * 4);
+    if (cascades < 1 || cascades > 8)
+      throw fieldError(file, "grid.cascades", fmt::format("{} is not in [1, 8]", cascades));
+    mustHold("grid.cascades", uint64_t(cascades) * OccupancyGrid::kCells * 4);
+    int background_rows = 0;
+    if (version >= 2 && h.contains("background")) {
+      background_rows = h.at("background").at("rows").get<int>();
+      if (background_rows < 2 || background_rows > 4096)
+        throw fieldError(file, "header.background.rows", fmt::format("{} is not in [2, 4096]", background_rows));
+      mustHold("header.background.rows", uint64_t(background_rows) * uint64_t(2 * background_rows) * 3 * 4);
+    }
     m.field = std::make_unique<RadianceField>(m.field_config, 0);
     m.grid = std::make_unique<OccupancyGrid>(cascades);
     const float threshold = h.at("grid").at("threshold").get<float>();
-    if (version >= 2 && h.contains("background")) {
-      const auto& b = h.at("background");
-      const auto f = b.at("frame").get<std::vector<float>>();
+    if (background_rows > 0) {
+      const auto f = h.at("background").at("frame").get<std::vector<float>>();
       if (f.size() != 9) throw fieldError(file, "header.background.frame", "must have 9 numbers");
       Eigen::Matrix3f frame;
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c) frame(r, c) = f[size_t(3 * r + c)];
-      m.background = std::make_unique<Background>(b.at("rows").get<int>(), frame);
+      m.background = std::make_unique<Background>(background_rows, frame);
     }
 
     std::vector<ArrayRef> targets = collectArrays(m, true);

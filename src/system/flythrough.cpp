@@ -7,11 +7,11 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/io/image_io.h"
 #include "nerfslam/nerf/renderer.h"
 
 namespace nerfslam {
@@ -124,9 +124,11 @@ FlythroughResult writeFlythrough(const nerf::NerfModel& model, const Camera& cam
   std::error_code ec;
   fs::remove_all(tmp, ec);
   ensureDirectory(tmp);
-  for (size_t i = 0; i < poses.size(); ++i) {
-    const fs::path f = tmp / fmt::format("{:06d}.png", i);
-    if (!cv::imwrite(f.string(), render(i))) fail("{}: could not write the image", f.string());
+  try {
+    for (size_t i = 0; i < poses.size(); ++i) writeImageAtomic(tmp / fmt::format("{:06d}.png", i), render(i));
+  } catch (...) {
+    fs::remove_all(tmp, ec);  // a full disk: no half-written sequence left behind
+    throw;
   }
   replaceFolder(tmp, final_dir);
   res.path = final_dir;

@@ -15,6 +15,7 @@
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/crc32.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 
 namespace nerfslam {
 namespace fs = std::filesystem;
@@ -32,17 +33,13 @@ std::string hex32(uint32_t x) { return fmt::format("{:08x}", x); }
 std::string readFileBytes(const fs::path& path, const std::string& what) {
   std::error_code ec;
   if (!fs::exists(path, ec)) fail("{}: missing ({})", path.string(), what);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot open for reading ({})", path.string(), what);
-  std::string s((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) fail("{}: read error", path.string());
-  return s;
+  return readInputFile(path, what);
 }
 
 // CRC-32 and size of a file read in chunks (NeRF models can be large).
 std::pair<uint64_t, uint32_t> fileSizeCrc(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot open for reading", path.string());
+  InputFile f = openInputFile(path);
+  std::istream& in = f.stream;
   std::vector<char> buf(1 << 20);
   uint64_t size = 0;
   uint32_t crc = 0;
@@ -53,7 +50,7 @@ std::pair<uint64_t, uint32_t> fileSizeCrc(const fs::path& path) {
     crc = crc32(buf.data(), static_cast<size_t>(n), crc);
     size += static_cast<uint64_t>(n);
   }
-  if (in.bad()) fail("{}: read error", path.string());
+  checkReadable(in, path);
   return {size, crc};
 }
 
@@ -83,7 +80,7 @@ T jsonField(const json& j, const char* key, const std::string& file, const std::
 
 uint32_t parseHex32(const std::string& s, const std::string& file, const std::string& path) {
   if (s.size() != 8 || s.find_first_not_of("0123456789abcdef") != std::string::npos)
-    throw fieldError(file, path, "expected 8 lowercase hex digits, got '" + s + "'");
+    throw fieldError(file, path, "expected 8 lowercase hex digits, got '" + cutForMessage(s) + "'");
   return static_cast<uint32_t>(std::stoul(s, nullptr, 16));
 }
 
@@ -101,7 +98,7 @@ json parseManifestJson(const fs::path& dir) {
   if (!fs::exists(dir, ec)) fail("{}: map folder not found", dir.string());
   if (!fs::exists(path, ec))
     fail("{}: missing: {} is not a map folder (or its first save never finished)", path.string(), dir.string());
-  const std::string text = readFileBytes(path, "the map manifest");
+  const std::string text = readFileBytes(path, "map manifest");
   try {
     return json::parse(text);
   } catch (const json::exception& e) {
@@ -113,7 +110,8 @@ json parseManifestJson(const fs::path& dir) {
 void checkFormat(const json& j, const std::string& file) {
   const auto format = jsonField<std::string>(j, "format", file, "format");
   if (format != kFormatName)
-    throw fieldError(file, "format", fmt::format("'{}' is not a nerfslam map (expected '{}')", format, kFormatName));
+    throw fieldError(file, "format",
+                     fmt::format("'{}' is not a nerfslam map (expected '{}')", cutForMessage(format), kFormatName));
   const auto version = jsonField<int64_t>(j, "format_version", file, "format_version");
   if (version != kMapFormatVersion)
     throw fieldError(file, "format_version",
@@ -262,6 +260,10 @@ MapManifest readMapManifest(const fs::path& dir) {
 std::string readMapFile(const fs::path& dir, const MapFileEntry& f) {
   const fs::path path = dir / f.name;
   checkPresent(path, f);
+  // The size first: a file that is not what the manifest lists is not read into memory.
+  std::error_code ec;
+  const uintmax_t on_disk = fs::file_size(path, ec);
+  if (!ec && on_disk != f.size) checkEntry(path, f, on_disk, f.crc);
   std::string data = readFileBytes(path, f.role + " file");
   checkEntry(path, f, data.size(), crc32(data));
   return data;

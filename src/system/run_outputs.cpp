@@ -8,11 +8,11 @@
 #include <sstream>
 
 #include <spdlog/spdlog.h>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/core/statistics.h"
 #include "nerfslam/eval/image_metrics.h"
 #include "nerfslam/io/image_io.h"
@@ -33,11 +33,7 @@ namespace fs = std::filesystem;
 constexpr float kSurfaceOpacity = 0.95f;
 constexpr float kSurfaceUncertainty = 0.05f;
 
-void writePng(const fs::path& path, const cv::Mat& bgr) {
-  AtomicOutput o(path);
-  if (!cv::imwrite(o.tempPath().string(), bgr)) fail("{}: could not write the image", path.string());
-  o.commit();
-}
+void writePng(const fs::path& path, const cv::Mat& bgr) { writeImageAtomic(path, bgr); }
 
 double mean(const std::vector<double>& v) {
   double s = 0;
@@ -63,11 +59,14 @@ std::map<double, fs::path> depthIndex(const Dataset& ds, std::string* why) {
     return idx;
   }
   const fs::path file = ds.root() / "depth.txt";
-  std::ifstream in(file);
-  if (!in) {
-    *why = file.string() + " not found";
+  InputFile f;
+  try {
+    f = openInputFile(file);
+  } catch (const Error& e) {
+    *why = e.what();
     return idx;
   }
+  std::istream& in = f.stream;
   std::string line;
   int lineno = 0;
   while (std::getline(in, line)) {
@@ -280,7 +279,9 @@ void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vec
   std::vector<nerf::DepthPointQuality> quality;
   const auto cloud = nerf::depthPointCloud(model, views, xo, &quality);
   nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
+  addRunOutput(rep, "nerf_cloud.ply");
   nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");
+  addRunOutput(rep, "nerf_cloud.pcd");
   rep["nerf_cloud_points"] = cloud.size();
   if (dense) {  // the surface: opaque, with a certain depth
     dense->label = fmt::format("NeRF surface: depth renders of {} training views", views.size());
@@ -296,6 +297,7 @@ void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vec
   }
   const auto mesh = nerf::extractMesh(model, xo);
   nerf::saveMesh(mesh, out / "mesh.ply");
+  addRunOutput(rep, "mesh.ply");
   rep["mesh_triangles"] = mesh.polygons.size();
 }
 
@@ -317,6 +319,7 @@ void writeFlythroughOutput(NerfMapping& nerf, const Camera& cam, const Trajector
                                 {"height", f.size.height},
                                 {"fps", f.fps},
                                 {"seconds", f.seconds}};
+      addRunOutput(rep, fs::relative(f.path, out).string() + (f.codec == "png" ? "/" : ""));
     });
   } catch (const std::exception& e) {
     rep["nerf_flythrough_error"] = e.what();
@@ -339,6 +342,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   if (eo.model_only) {
     ensureDirectory(out / "nerf");
     nerf->withModel([&](nerf::NerfModel& model) { nerf::saveModel(model, out / "nerf" / "model.nerf"); });
+    addRunOutput(rep, "nerf/model.nerf");
     return;
   }
   const Camera cam = nerf->trainingCamera();
@@ -399,6 +403,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
       }
       held_list.push_back(j);
     }
+    if (!held_pick.empty()) addRunOutput(rep, "nerf/heldout/");
     // Training views (keyframes the NeRF trained on; their keyframes may since have been culled).
     for (size_t j = 0; j < kf_views.size(); ++j) {
       const nerf::TrainingView& v = kf_views[j];
@@ -409,7 +414,9 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
       psnr_kf.push_back(e.psnr);
       writePng(out / "nerf" / "keyframes" / fmt::format("{:06d}.png", kf_ids[j]), e.side_by_side);
     }
+    if (!kf_views.empty()) addRunOutput(rep, "nerf/keyframes/");
     nerf::saveModel(model, out / "nerf" / "model.nerf");
+    addRunOutput(rep, "nerf/model.nerf");
     writeCloudAndMesh(model, cam, view_poses, eo, out, rep, dense);
   });
   rep["nerf_psnr_heldout"] = mean(psnr_held);
@@ -425,12 +432,20 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
   if (eo.flythrough_frames > 0 && !traj.empty()) writeFlythroughOutput(*nerf, cam, traj, eo, out, rep);
 }
 
+void addRunOutput(nlohmann::json& report, const std::string& name) {
+  if (!report.contains("outputs")) report["outputs"] = nlohmann::json::array();
+  report["outputs"].push_back(name);
+}
+
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& traj, const Trajectory& gt,
-                      const std::optional<Sim3>& align, const PreviewCloud& dense, const nlohmann::json& rep,
+                      const std::optional<Sim3>& align, const PreviewCloud& dense, nlohmann::json& rep,
                       const fs::path& out) {
   try {
     const cv::Mat preview = mapPreview(slam, traj, dense);
-    if (!preview.empty()) writePng(out / "map_preview.png", preview);
+    if (!preview.empty()) {
+      writePng(out / "map_preview.png", preview);
+      addRunOutput(rep, "map_preview.png");
+    }
   } catch (const std::exception& e) {
     // The map preview needs OSMesa; a machine without it still gets every other output.
     spdlog::warn("map_preview.png not written: {}", e.what());
@@ -438,6 +453,7 @@ void writeRunPreviews(const SlamSystem& slam, const Trajectory& traj, const Traj
   if (traj.size() < 2) return;
   try {
     writePng(out / "trajectory.png", trajectoryPlot(traj, gt, align, rep).image);
+    addRunOutput(rep, "trajectory.png");
   } catch (const std::exception& e) {
     spdlog::warn("trajectory.png not written: {}", e.what());
   }

@@ -15,6 +15,7 @@
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/bounded_queue.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/core/options_yaml.h"
 #include "nerfslam/core/stop_signal.h"
 #include "nerfslam/core/thread.h"
@@ -71,6 +72,25 @@ std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   dopt.max_frames = ro.max_frames;
   dopt.fps = ro.fps;
   return openDataset(spec, dopt);
+}
+
+// Outputs are not written into the dataset being read: a folder dataset's frames are every image in
+// its folder, so the PNGs a run writes there (map_preview.png, trajectory.png) would be frames of the
+// next run; and the outputs of any kind would be mixed with the dataset's own files. Checked before
+// anything is written.
+void refuseOutputsInDataset(const RunOptions& ro, const Dataset& ds) {
+  const bool folder = ds.kind() == "folder";
+  auto check = [&](const std::filesystem::path& dir, const char* option) {
+    if (folder && isInsideDirectory(dir, ds.root()))
+      fail(
+          "run: {} {} is inside the folder dataset {}, whose frames are every image in it; choose an output "
+          "folder outside it",
+          option, dir.string(), ds.root().string());
+    if (!folder && sameFile(dir, ds.root()))
+      fail("run: {} {} is the {} dataset's own folder; choose another output folder", option, dir.string(), ds.kind());
+  };
+  check(ro.out, "--out");
+  if (ro.save_map) check(*ro.save_map, "--save-map");
 }
 
 // The saved map to start from (map_store.h): verified, and refused when made with another camera.
@@ -168,7 +188,8 @@ void readFrames(const Dataset& ds, SlamSystem& slam, const RunOptions& ro, const
     }
     if (!(f.timestamp > last_ts)) {
       ++pipe.out_of_order;
-      spdlog::warn("frame {}: timestamp {:.6f} not after the previous {:.6f}; skipped", i, f.timestamp, last_ts);
+      spdlog::warn("frame {}: timestamp {} not after the previous {}; skipped", i, numberForMessage(f.timestamp),
+                   numberForMessage(last_ts));
       continue;
     }
     last_ts = f.timestamp;
@@ -435,8 +456,11 @@ GroundTruthEval evaluateAgainstGroundTruth(const Dataset& ds, const Trajectory& 
 void writeRunFiles(SlamSystem& slam, const Dataset& ds, const Trajectory& traj, const GroundTruthEval& ge,
                    const std::filesystem::path& out, const NerfEvalOptions& eo, nlohmann::json& rep) {
   writeTumTrajectory(out / "trajectory.txt", traj);
+  addRunOutput(rep, "trajectory.txt");
   writeTumTrajectory(out / "keyframes.txt", slam.keyframeTrajectory());
+  addRunOutput(rep, "keyframes.txt");
   writeMapPly(out / "map_points.ply", slam.map());
+  addRunOutput(rep, "map_points.ply");
   PreviewCloud dense;
   if (slam.nerf()) {
     try {
@@ -467,6 +491,9 @@ bool saveRunMap(SlamSystem& slam, const RunOptions& ro, const Camera& camera, co
   try {
     const MapSaveResult ms = saveMapFolder(*map_dir, slam.map(), camera, sys, write_nerf_model);
     rep["map_saved"] = map_dir->string();
+    std::error_code ec;
+    const std::filesystem::path rel = std::filesystem::relative(*map_dir, ro.out, ec);
+    addRunOutput(rep, (ec || rel.empty() || *rel.begin() == ".." ? map_dir->string() : rel.string()) + "/");
     rep["map_save_s"] = ms.seconds;
     rep["map_bytes"] = ms.bytes;
   } catch (const std::exception& e) {
@@ -504,8 +531,13 @@ void printSummary(const SlamSystem& slam, const Dataset& ds, const Trajectory& t
                  rep["skipped"].empty()
                      ? "nothing"
                      : fmt::format("{}", fmt::join(rep["skipped"].get<std::vector<std::string>>(), ", ")).c_str());
-  std::fprintf(stderr, "results in %s (report.json, trajectory.txt, map_preview.png%s)\n", out.string().c_str(),
-               slam.nerf() ? ", nerf/, nerf_cloud.ply, mesh.ply" : "");
+  // What was written (a NeRF output that failed is not among them: nerf_error says why).
+  std::string written;
+  for (const auto& o : rep.value("outputs", nlohmann::json::array()))
+    written += (written.empty() ? "" : ", ") + o.get<std::string>();
+  std::fprintf(stderr, "results in %s (%s)\n", out.string().c_str(), written.c_str());
+  if (rep.contains("nerf_error"))
+    std::fprintf(stderr, "NeRF outputs not written: %s\n", rep["nerf_error"].get<std::string>().c_str());
 }
 
 }  // namespace
@@ -528,6 +560,7 @@ void writeMapPly(const std::filesystem::path& path, const Map& map) {
 RunResult runSlam(const RunOptions& ro) {
   const SystemOptions sys = loadRunOptions(ro);
   const std::unique_ptr<Dataset> ds = openRunDataset(ro);
+  refuseOutputsInDataset(ro, *ds);
   ensureDirectory(ro.out);
   const Camera& camera = ds->camera();
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
@@ -585,6 +618,7 @@ RunResult runSlam(const RunOptions& ro) {
   const GroundTruthEval ge = evaluateAgainstGroundTruth(*ds, traj, rep);
   writeRunFiles(slam, *ds, traj, ge, ro.out, eval_options, rep);
   const bool map_save_failed = saveRunMap(slam, ro, camera, sys, rep);
+  addRunOutput(rep, "report.json");
   writeStringAtomic(ro.out / "report.json", rep.dump(2) + "\n");
   printSummary(slam, *ds, traj, rep, failure, pipe.processed.load() / std::max(wall_s, 1e-9), ro.out);
 

@@ -8,6 +8,7 @@
 #include "binary_blob.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 
 namespace nerfslam {
 namespace {
@@ -175,13 +176,8 @@ void saveKeyframeDatabase(const KeyframeDatabase& db, const std::filesystem::pat
 }
 
 KeyframeDatabase loadKeyframeDatabase(const std::filesystem::path& path, size_t expected_word_count) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) fail("{}: keyframe database file not found", path.string());
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  if (!in && !in.eof()) fail("{}: read error", path.string());
-  return KeyframeDatabase::deserialize(s.str(), path.string(), expected_word_count);
+  return KeyframeDatabase::deserialize(readInputFile(path, "keyframe database file"), path.string(),
+                                       expected_word_count);
 }
 
 }  // namespace nerfslam

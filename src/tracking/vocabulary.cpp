@@ -13,6 +13,7 @@
 #include "binary_blob.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/tracking/frame.h"
 
 namespace nerfslam {
@@ -371,14 +372,7 @@ void saveVocabulary(const Vocabulary& vocabulary, const std::filesystem::path& p
 }
 
 Vocabulary loadVocabulary(const std::filesystem::path& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) fail("{}: vocabulary file not found", path.string());
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot open the vocabulary file", path.string());
-  std::ostringstream s;
-  s << in.rdbuf();
-  if (in.bad()) fail("{}: read error", path.string());
-  return Vocabulary::deserialize(s.str(), path.string());
+  return Vocabulary::deserialize(readInputFile(path, "vocabulary file"), path.string());
 }
 
 }  // namespace nerfslam

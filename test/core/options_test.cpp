@@ -293,6 +293,40 @@ TEST(Options, LoadOptionsFileNamesTheFile) {
   }
 }
 
+// Size and echo (issue 22): a 10 MB YAML list took 2.45 GB in yaml-cpp, so a YAML file over
+// kMaxYamlFileBytes is refused before it is parsed, naming the file and its size; a long value in a
+// file under the cap is quoted cut to 80 characters, not whole; a key far longer than any option is
+// not compared letter by letter with each (the "did you mean" search was quadratic in its length).
+TEST(Options, RefusesHugeFilesAndCutsLongValues) {
+  test::TempDir dir;
+  SampleSystem o;
+  {
+    std::ofstream out(dir / "list.yaml");
+    out << "tracker:\n  scales: [";
+    for (int i = 0; i < 600000; ++i) out << "1, ";
+    out << "1]\n";
+  }
+  const std::string big = test::errorOf([&] { loadOptionsFile(dir / "list.yaml", o); });
+  EXPECT_EQ(big, (dir / "list.yaml").string() + ": 1.80 MB, more than the 1.00 MB a YAML file may have");
+  std::ofstream(dir / "scalar.yaml") << "tracker:\n  matcher: " << std::string(900000, 'x') << "\n";
+  const std::string scalar = test::errorOf([&] {
+    SampleSystem s;
+    loadOptionsFile(dir / "scalar.yaml", s);
+    validateOptions(s, (dir / "scalar.yaml").string());
+  });
+  expectMentions(scalar, {(dir / "scalar.yaml").string(), "tracker.matcher", "must be one of: patch, orb",
+                          "(got \"" + std::string(76, 'x') + "...)"});
+  EXPECT_LT(scalar.size(), 300u) << scalar;
+  std::ofstream(dir / "type.yaml") << "tracker:\n  fast_threshold: " << std::string(900000, '7') << "\n";
+  const std::string type = test::errorOf([&] { loadOptionsFile(dir / "type.yaml", o); });
+  expectMentions(type, {"tracker.fast_threshold", "expected int, got '" + std::string(77, '7') + "...'"});
+  EXPECT_LT(type.size(), 300u) << type;
+  std::ofstream(dir / "key.yaml") << "tracker:\n  ? " << std::string(900000, 'k') << "\n  : 1\n";
+  const std::string key = test::errorOf([&] { loadOptionsFile(dir / "key.yaml", o); });
+  expectMentions(key, {"field 'tracker." + std::string(77, 'k') + "...': unknown option"});
+  EXPECT_LT(key.size(), 300u) << key;
+}
+
 // Two holes a user fell into (issue 22): a directory given as the file was ignored (all defaults,
 // exit 0), and a key given twice kept its first value silently.
 TEST(Options, RefusesADirectoryAndAKeyGivenTwice) {

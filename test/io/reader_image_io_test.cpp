@@ -1,11 +1,14 @@
 #include "nerfslam/io/image_io.h"
 
 #include <fstream>
+#include <random>
 
+#include <zlib.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "io/image_header.h"
+#include "nerfslam/core/crc32.h"
 #include "nerfslam/core/error.h"
 #include "test_support.h"
 
@@ -174,6 +177,129 @@ TEST(ImageIo, RefusesHeadersDeclaringHugeImages) {
       EXPECT_NE(std::string(e.what()).find("unknown format"), std::string::npos) << e.what();
     }
   }
+}
+
+std::string be32(uint32_t v) { return {char(v >> 24), char((v >> 16) & 0xff), char((v >> 8) & 0xff), char(v & 0xff)}; }
+uint32_t readBe32(const std::string& s, size_t at) {
+  return uint32_t(uint8_t(s[at])) << 24 | uint32_t(uint8_t(s[at + 1])) << 16 | uint32_t(uint8_t(s[at + 2])) << 8 |
+         uint8_t(s[at + 3]);
+}
+// A PNG chunk with its length and CRC.
+std::string pngChunk(const std::string& type, const std::string& data) {
+  const std::string body = type + data;
+  return be32(uint32_t(data.size())) + body + be32(crc32(body));
+}
+std::string zlibCompress(const std::string& raw) {
+  uLongf n = compressBound(uLong(raw.size()));
+  std::string out(n, '\0');
+  EXPECT_EQ(
+      compress(reinterpret_cast<Bytef*>(out.data()), &n, reinterpret_cast<const Bytef*>(raw.data()), uLong(raw.size())),
+      Z_OK);
+  out.resize(n);
+  return out;
+}
+
+void expectImageError(const fs::path& p, const std::string& what) {
+  const std::string e = test::errorOf([&] { readImage(p, ImageMode::kColor); });
+  EXPECT_NE(e.find(p.string() + ": " + what), std::string::npos) << "expected '" << what << "', got: " << e;
+}
+
+// Corrupt copies of real frames (issue 22). OpenCV decodes a JPEG whose entropy data is damaged, or
+// that was cut short and re-terminated with FF D9, into a partly grey or garbled image with only
+// libjpeg's warning on stderr; libpng reports a PNG whose pixel data ends early (its chunks intact)
+// only on stderr too. Each is now an Error naming the file, which a run treats as any unreadable
+// frame. A JPEG has no checksum: a flipped byte that leaves the Huffman stream in step is decoded
+// without a warning by libjpeg itself, and cannot be told from image content.
+TEST(ImageIo, CorruptCopiesOfRealJpegAndPngFramesAreRefused) {
+  NERFSLAM_REQUIRE_DATA(jpg_file, "strecha_fountain-P11/images/0000.jpg");
+  NERFSLAM_REQUIRE_DATA(png_file, "kitti06_first51/image_l/000000.png");
+  test::TempDir tmp;
+  const std::string jpg = slurp(jpg_file), png = slurp(png_file);
+  ASSERT_NO_THROW(readImage(jpg_file, ImageMode::kColor));
+  // The entropy-coded data: after the start-of-scan marker and its header.
+  const size_t sos = jpg.find("\xff\xda");
+  ASSERT_NE(sos, std::string::npos);
+  const size_t data = sos + 2 + (size_t(uint8_t(jpg[sos + 2])) << 8 | uint8_t(jpg[sos + 3]));
+  spit(tmp / "cut.jpg", jpg.substr(0, data + (jpg.size() - data) / 2) + "\xff\xd9");
+  expectImageError(tmp / "cut.jpg", "corrupt JPEG image: Corrupt JPEG data: premature end of data segment");
+  std::string flipped = jpg;
+  flipped[data + jpg.size() / 3] ^= 0x10;
+  spit(tmp / "flipped.jpg", flipped);
+  expectImageError(tmp / "flipped.jpg",
+                   "corrupt JPEG image: Corrupt JPEG data: 42 extraneous bytes before marker 0xd9");
+  // Random single-byte changes in the entropy data: those that put the decoder out of step are
+  // found (15 of these 40; the rest decode without a warning from libjpeg either).
+  std::mt19937 rng(1);
+  int found = 0;
+  for (int k = 0; k < 40; ++k) {
+    std::string c = jpg;
+    c[data + rng() % (jpg.size() - data - 2)] ^= char(1 + rng() % 255);
+    spit(tmp / "r.jpg", c);
+    found += test::errorOf([&] { readImage(tmp / "r.jpg"); }).find("corrupt JPEG image") != std::string::npos;
+  }
+  std::printf("random single-byte changes in the entropy data found: %d of 40\n", found);
+  EXPECT_GE(found, 12);
+
+  // PNG: a flipped byte fails its chunk's CRC; pixel data cut short in a file whose chunks are all
+  // valid (the first IDAT halved, the others dropped, IEND after it).
+  ASSERT_EQ(png.substr(12, 4), "IHDR");
+  const size_t idat = 8 + 12 + 13;
+  ASSERT_EQ(png.substr(idat + 4, 4), "IDAT");
+  std::string crc = png;
+  crc[idat + 8 + 100] ^= 0x01;
+  spit(tmp / "crc.png", crc);
+  expectImageError(tmp / "crc.png", "corrupt PNG image: chunk 'IDAT' at byte 33 fails its CRC check");
+  const uint32_t n = readBe32(png, idat);
+  const std::string cut = png.substr(0, idat) + pngChunk("IDAT", png.substr(idat + 8, n / 2)) + pngChunk("IEND", "");
+  spit(tmp / "cut.png", cut);
+  expectImageError(tmp / "cut.png",
+                   "truncated PNG image: its pixel data holds 7613 of the 453990 bytes of rows its header declares");
+  // Data that does not inflate, its CRC made right.
+  std::string bad = png.substr(idat + 8, n);
+  for (size_t i = 2; i < 40; ++i) bad[i] = char(0xff);
+  spit(tmp / "zlib.png", png.substr(0, idat) + pngChunk("IDAT", bad) + png.substr(idat + 12 + n));
+  expectImageError(tmp / "zlib.png", "corrupt PNG image: its pixel data does not decompress (zlib: ");
+}
+
+// The row count of an interlaced (Adam7) PNG, which OpenCV never writes: a 13x7 grey image made by
+// hand reads; the same with its last row missing is refused.
+TEST(ImageIo, InterlacedPngIsCheckedByItsSevenPasses) {
+  test::TempDir tmp;
+  const int w = 13, h = 7;
+  const int pass[7][4] = {{0, 0, 8, 8}, {4, 0, 8, 8}, {0, 4, 4, 8}, {2, 0, 4, 4},
+                          {0, 2, 2, 4}, {1, 0, 2, 2}, {0, 1, 1, 2}};
+  std::string raw;
+  for (const auto& p : pass)
+    for (int y = p[1]; y < h; y += p[3]) {
+      if (p[0] >= w) continue;
+      raw.push_back('\0');  // filter: none
+      for (int x = p[0]; x < w; x += p[2]) raw.push_back(char(10 * x + y));
+    }
+  std::string ihdr = be32(w) + be32(h);
+  ihdr += std::string{char(8), char(0), char(0), char(0), char(1)};  // 8-bit grey, Adam7
+  const std::string head = "\x89PNG\r\n\x1a\n" + pngChunk("IHDR", ihdr);
+  spit(tmp / "adam7.png", head + pngChunk("IDAT", zlibCompress(raw)) + pngChunk("IEND", ""));
+  const cv::Mat img = readImage(tmp / "adam7.png", ImageMode::kGray);
+  ASSERT_EQ(img.size(), cv::Size(w, h));
+  EXPECT_EQ(img.at<uchar>(6, 12), 126);
+  EXPECT_EQ(img.at<uchar>(3, 5), 53);
+  spit(tmp / "short.png", head + pngChunk("IDAT", zlibCompress(raw.substr(0, raw.size() - 7))) + pngChunk("IEND", ""));
+  expectImageError(tmp / "short.png", "truncated PNG image: its pixel data holds 98 of the 105 bytes");
+}
+
+// No false alarm: every image of the shared data (at most 30 a folder) reads.
+TEST(ImageIo, EveryRealImageOfTheSharedDataReads) {
+  NERFSLAM_REQUIRE_DATA(data, "kitti06_first51");
+  size_t n = 0;
+  for (const char* dir :
+       {"kitti06_first51/image_l", "new_tsukuba_150/images", "strecha_fountain-P11/images", "opencv_chessboard",
+        "euroc_V1_01_piece/mav0/cam0/data", "middlebury_dino", "middlebury_templeRing", "lego_train/train"}) {
+    const auto files = listImages(test::dataDir() / dir);
+    EXPECT_FALSE(files.empty()) << dir;
+    for (size_t i = 0; i < files.size() && i < 30; ++i, ++n)
+      EXPECT_NO_THROW(readImage(files[i], ImageMode::kColor)) << files[i];
+  }
+  EXPECT_EQ(n, 193u);
 }
 
 }  // namespace

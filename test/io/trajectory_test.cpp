@@ -132,7 +132,7 @@ TEST(Trajectory, ErrorsNameFileAndLine) {
     }
   }
   const fs::path missing = tmp / "missing.txt";
-  expectError([&] { readTrajectory(missing); }, {missing.string(), "cannot open"});
+  expectError([&] { readTrajectory(missing); }, {missing.string(), "trajectory file not found"});
   test::writeText(tmp / "empty.txt", "# only a comment\n\n");
   expectError([&] { readTumTrajectory(tmp / "empty.txt"); }, {"empty.txt", "no poses"});
   expectError([&] { readTrajectory(tmp / "empty.txt"); }, {"empty.txt", "no poses"});

@@ -2,10 +2,17 @@
 
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
+
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <random>
+#include <thread>
 
+#include <nlohmann/json.hpp>
+
+#include "nerfslam/core/crc32.h"
 #include "nerfslam/core/error.h"
 #include "test_support.h"
 
@@ -106,7 +113,64 @@ TEST(ModelIo, RejectsTruncatedForeignWrongVersionAndCorruptFiles) {
   c[good.size() / 2] ^= 0x10;  // one flipped bit in the parameters
   writeAll(dir / "corrupt.nerf", c);
   expectLoadError(dir / "corrupt.nerf", "checksum mismatch");
-  expectLoadError(dir / "missing.nerf", "cannot open");
+  expectLoadError(dir / "missing.nerf", "NeRF model file not found");
+}
+
+// The file with its JSON header edited by `edit` and the checksum made right again, so that only the
+// edited sizes are wrong.
+std::string withHeader(const std::string& file, const std::function<void(nlohmann::json&)>& edit) {
+  uint64_t hlen;
+  std::memcpy(&hlen, file.data() + 16, 8);
+  nlohmann::json h = nlohmann::json::parse(file.substr(24, hlen));
+  edit(h);
+  const std::string header = h.dump();
+  const uint64_t n = header.size();
+  std::string out = file.substr(0, 16) + std::string(reinterpret_cast<const char*>(&n), 8) + header +
+                    file.substr(24 + hlen, file.size() - 24 - hlen - 4);
+  const uint32_t crc = crc32(out);
+  return out + std::string(reinterpret_cast<const char*>(&crc), 4);
+}
+
+// What a header declares is checked against the file before it is allocated: a 16 MB file whose
+// header asks for a 32-level, 2^22-entry hash grid (869 MB of parameters, three times that with the
+// optimiser's moments) or 8 occupancy cascades is refused at once, as is a directory given as the model (an
+// ifstream opens a directory, and seeking to its "end" made the loader allocate 2^63 bytes:
+// std::bad_alloc). A model read through a pipe, whose size is not known, still loads.
+TEST(ModelIo, RefusesHeadersDeclaringMoreThanTheFileHoldsAndDirectories) {
+  test::TempDir dir;
+  NerfModel a = randomModel();
+  saveModel(a, dir / "m.nerf");
+  const std::string good = readAll(dir / "m.nerf");
+  ASSERT_EQ(withHeader(good, [](nlohmann::json&) {}), good);
+
+  writeAll(dir / "count.nerf", withHeader(good, [](nlohmann::json& h) { h["arrays"][0]["count"] = 1000000000000ull; }));
+  expectLoadError(dir / "count.nerf", "declares 1000000000000 values of 4 bytes, but only");
+  writeAll(dir / "grid.nerf", withHeader(good, [](nlohmann::json& h) {
+             h["field_config"]["n_levels"] = 32;
+             h["field_config"]["log2_hashmap_size"] = 22;
+             h["field_config"]["finest_resolution"] = 1e6;
+           }));
+  expectLoadError(dir / "grid.nerf",
+                  "field 'header.field_config': declares 869 MB of parameters, but the file's arrays hold 17.7 MB");
+  writeAll(dir / "cascades.nerf", withHeader(good, [](nlohmann::json& h) { h["grid"]["cascades"] = 8; }));
+  expectLoadError(dir / "cascades.nerf", "field 'grid.cascades': declares 67.1 MB of parameters");
+  writeAll(dir / "cascades0.nerf", withHeader(good, [](nlohmann::json& h) { h["grid"]["cascades"] = -1; }));
+  expectLoadError(dir / "cascades0.nerf", "field 'grid.cascades': -1 is not in [1, 8]");
+  writeAll(dir / "levels.nerf", withHeader(good, [](nlohmann::json& h) { h["field_config"]["n_levels"] = 9; }));
+  expectLoadError(dir / "levels.nerf", "field 'n_levels': must be a multiple of 8");
+
+  std::filesystem::create_directory(dir / "model_dir.nerf");
+  expectLoadError(dir / "model_dir.nerf", "model_dir.nerf: is a directory, not a NeRF model file");
+
+  const std::filesystem::path fifo = dir / "pipe.nerf";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  std::thread writer([&] { writeAll(fifo, good); });
+  NerfModel b = loadModel(fifo);
+  writer.join();
+  EXPECT_EQ(b.grid->values(), a.grid->values());
+  std::thread short_writer([&] { writeAll(fifo, good.substr(0, good.size() - 100)); });
+  expectLoadError(fifo, "truncated model file");
+  short_writer.join();
 }
 
 TEST(ModelIo, RefusesToSaveNonFiniteParametersAndLeavesOldFile) {

@@ -392,6 +392,11 @@ TEST(NerfMapping, WholeSystemWritesTheDenseMapAndReport) {
                         "trajectory.png", "report.json"})
     EXPECT_TRUE(std::filesystem::exists(ro.out / f)) << f;
   EXPECT_FALSE(std::filesystem::is_empty(ro.out / "nerf" / "heldout"));
+  // The report lists what was written, in the order written.
+  const auto outputs = rep.at("outputs").get<std::vector<std::string>>();
+  for (const char* f : {"nerf/heldout/", "nerf/keyframes/", "nerf/model.nerf", "nerf_cloud.ply", "nerf_cloud.pcd",
+                        "mesh.ply", "map_preview.png", "trajectory.png", "map/", "report.json"})
+    EXPECT_NE(std::find(outputs.begin(), outputs.end(), f), outputs.end()) << f << " not in " << rep.at("outputs");
   // The saved model loads and renders.
   const nerf::NerfModel m = nerf::loadModel(ro.out / "nerf" / "model.nerf");
   EXPECT_GT(m.training_steps, 0u);

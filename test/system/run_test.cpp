@@ -240,6 +240,29 @@ TEST(RunSystem, BlackFramesReportFailureWithoutInventingMotion) {
   EXPECT_NE(rep.at("failure").get<std::string>().find("6 black"), std::string::npos) << rep.dump(2);
 }
 
+// The report's "outputs" and the summary line name what this run wrote. A run with the NeRF on whose
+// map never initialised used to list "nerf/, nerf_cloud.ply, mesh.ply" among its results; a file an
+// older run left in the folder is not this run's result either.
+TEST(RunSystem, ReportListsOnlyTheOutputsWritten) {
+  test::TempDir dir;
+  const auto images = makeFolder(dir, 4, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(0)); });
+  const auto out = dir / "out";
+  std::filesystem::create_directories(out);
+  test::writeText(out / "mesh.ply", "an older run's mesh\n");
+  const auto r = test::runCli("run --dataset folder:" + images.string() + " --camera " +
+                              (dir / "camera.yaml").string() + " --out " + out.string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto rep = readReport(out);
+  EXPECT_EQ(rep.at("outputs"), nlohmann::json({"trajectory.txt", "keyframes.txt", "map_points.ply", "report.json"}))
+      << rep.dump(2);
+  EXPECT_EQ(rep.at("nerf_error").get<std::string>(), "no NeRF model: the map never initialised");
+  EXPECT_NE(r.output.find("results in " + out.string() +
+                          " (trajectory.txt, keyframes.txt, map_points.ply, "
+                          "report.json)\nNeRF outputs not written: no NeRF model: the map never initialised"),
+            std::string::npos)
+      << r.output;
+}
+
 TEST(RunSystem, SaturatedFramesReportFailure) {
   test::TempDir dir;
   const auto images = makeFolder(dir, 4, [](int) { return cv::Mat(240, 320, CV_8U, cv::Scalar(255)); });

@@ -45,8 +45,12 @@ std::string didYouMean(const std::string& key, const std::vector<std::string>& c
 // The keys of a YAML map in document order (empty for anything that is not a map).
 std::vector<std::string> yamlKeys(const YAML::Node& map);
 
-// Parses a YAML file, throwing an Error naming the file (missing, unreadable, syntax error with
-// line and column).
+// The largest YAML file loadYamlFile reads: our option and camera files are a few KB, and yaml-cpp
+// needs about 250 bytes of memory per byte of a long list (a 10 MB list took 2.45 GB).
+constexpr uint64_t kMaxYamlFileBytes = 1000000;
+
+// Parses a YAML file, throwing an Error naming the file (missing, a directory, unreadable, larger
+// than kMaxYamlFileBytes, syntax error with line and column, a key given twice).
 YAML::Node loadYamlFile(const std::filesystem::path& path);
 
 // Formats a double so that it parses back to the same value (shortest round-trip form).
@@ -175,8 +179,9 @@ struct Loader {
       bool known = false;
       for (const auto& n : loader.names) known = known || n == key;
       if (!known)
-        errors->push_back(
-            fieldError(source, joinPath(prefix, key.c_str()), "unknown option" + didYouMean(key, loader.names)).what());
+        errors->push_back(fieldError(source, joinPath(prefix, cutForMessage(key).c_str()),
+                                     "unknown option" + didYouMean(key, loader.names))
+                              .what());
     }
   }
 };
@@ -191,7 +196,8 @@ struct Validator {
     static_assert(kIsLeaf<T>, "constraints apply to leaf options, not sections");
     const std::string why = check(field);
     if (!why.empty())
-      errors->push_back(fieldError(source, joinPath(prefix, name), why + " (got " + formatValue(field) + ")").what());
+      errors->push_back(
+          fieldError(source, joinPath(prefix, name), why + " (got " + cutForMessage(formatValue(field)) + ")").what());
   }
 
   template <typename T>

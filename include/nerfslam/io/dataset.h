@@ -102,6 +102,10 @@ struct DatasetOptions {
   size_t start = 0;
   size_t stride = 1;
   size_t max_frames = 0;
+  // How the caller's user gives `fps` and `camera_override`, named by the errors that ask for them
+  // (the CLI's flags; the ROS publisher's parameters are "~rate" and "~camera").
+  std::string fps_option = "--fps";
+  std::string camera_option = "--camera";
 };
 
 // All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba.

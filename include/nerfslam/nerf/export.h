@@ -52,8 +52,11 @@ pcl::PointCloud<pcl::PointXYZRGB> depthPointCloud(const NerfModel& model, const 
 
 pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& options = {});
 
-// Atomic writers (PCL into a temporary file, then rename). The format follows the extension for
-// clouds: .ply (binary PLY) or .pcd (binary PCD); meshes are written as binary PLY.
+// Atomic writers (core/atomic_file.h: a temporary file, then rename), every write checked: a full disk
+// is an Error naming the file ("mesh.ply: write failed (disk full?)") and leaves no cut-off file. The
+// format follows the extension for clouds: .ply (binary little-endian PLY: x y z float, red green
+// blue uchar) or .pcd (binary PCD v0.7, PCL's layout for PointXYZRGB); meshes are binary PLY with
+// faces as "list uchar int vertex_indices". PCL, MeshLab, Open3D and CloudCompare read them.
 void savePointCloud(const pcl::PointCloud<pcl::PointXYZRGB>& cloud, const std::filesystem::path& path);
 void saveMesh(const pcl::PolygonMesh& mesh, const std::filesystem::path& path);
 

@@ -9,7 +9,8 @@
 //   nerf/flythrough.mp4        renders along the estimated trajectory (or nerf/flythrough/NNNNNN.png)
 //   map_preview.png            the NeRF's surface and the trajectory (no NeRF: the sparse map)
 //   trajectory.png             top view with axes: the estimate, Sim(3)-aligned on the ground truth if any
-// and the report fields nerf_* (see README). Every file is written atomically.
+// and the report fields nerf_* (see README). Every file is written atomically, each write checked, and
+// listed in the report's "outputs" once written (addRunOutput).
 #include <filesystem>
 #include <optional>
 #include <vector>
@@ -34,12 +35,18 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& dataset, const Trajectory
                       const std::optional<Sim3>& gt_alignment, const std::filesystem::path& out,
                       const NerfEvalOptions& options, nlohmann::json& report, PreviewCloud* dense = nullptr);
 
+// Appends `name` (relative to the run's folder; a folder ends in '/') to report["outputs"]: what the
+// run wrote, in the order written. An output that was not written (a full disk, a NeRF that never
+// initialised, a signal that skipped it) is not listed, even where an older run left a file of that
+// name.
+void addRunOutput(nlohmann::json& report, const std::string& name);
+
 // map_preview.png: the NeRF surface `dense` (when not empty) and the trajectory from a viewpoint that
 // shows the scene, else the sparse points, keyframes and trajectory; and trajectory.png, a top view
 // with axes: with `ground_truth` and `gt_alignment` the aligned estimate on it in metres, titled with
 // the report's ate_rmse_m, ate_percent_of_path and path_length_m, else the estimate in map units.
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& trajectory, const Trajectory& ground_truth,
-                      const std::optional<Sim3>& gt_alignment, const PreviewCloud& dense, const nlohmann::json& report,
+                      const std::optional<Sim3>& gt_alignment, const PreviewCloud& dense, nlohmann::json& report,
                       const std::filesystem::path& out);
 
 }  // namespace nerfslam
