@@ -136,11 +136,12 @@ void Trainer::updateGrid() {
   const int64_t total = int64_t(model_.grid->cascades()) * OccupancyGrid::kCells;
   if (step_ == 0) {
     // Every cell once: the grid starts from a full, untested occupancy. An untrained field is
-    // nearly uniform, so there one sample per 4^3 cells is as good a start and costs 1/64 of the
+    // nearly uniform, so there one sample per 2^3 cells is as good a start and costs 1/8 of the
     // queries (a full sweep of 2-5 cascades is 4-10 M queries, seconds on a CPU at every start); a
-    // trained one (resumed, distilled) is swept cell by cell.
+    // trained one (resumed, distilled) is swept cell by cell. Blocks of 4^3 cost 1/64 but left the
+    // synthetic sphere 0.4 dB and its normals 0.03 of cosine worse after 300 steps.
     p.uniform_cells = -1;
-    p.sweep_block = model_.training_steps == 0 ? 4 : 1;
+    p.sweep_block = model_.training_steps == 0 ? 2 : 1;
   } else {
     const double per_step = opt_.effectiveGridUpdateScale();
     if (step_ < opt_.grid_warmup_steps) {

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <random>
 #include <vector>
 
@@ -44,6 +45,35 @@ double losOf(const RaySamples& r, float t_surf, float width) {
   return lineOfSightLoss(n, r.sigma.data(), r.dt.data(), r.t.data(), f, t_surf, width, 1.f, d.data());
 }
 
+// Compares grad (what a loss added, with `scale`, to 0.25 in every entry) with central finite
+// differences of loss(r) over the samples the ray composites; returns how many were non-trivial.
+int checkSigmaGradient(RaySamples& r, int used, const std::vector<float>& grad, float scale,
+                       const std::function<double(const RaySamples&)>& loss, int ray) {
+  int checked = 0;
+  for (int i = 0; i < used; ++i) {
+    const float h = 1e-2f, x = r.sigma[size_t(i)];
+    r.sigma[size_t(i)] = x + h;
+    const double lp = loss(r);
+    r.sigma[size_t(i)] = x - h;
+    const double lm = loss(r);
+    r.sigma[size_t(i)] = x;
+    const double fd = scale * (lp - lm) / (2.0 * h);
+    EXPECT_NEAR(grad[size_t(i)] - 0.25f, fd, 1e-4 + 1e-2 * std::fabs(fd)) << "ray " << ray << " sample " << i;
+    checked += std::fabs(fd) > 1e-4;
+  }
+  return checked;
+}
+
+// n samples evenly spread over t in [0, 1], colour 0.5, no density yet.
+RaySamples evenRay(int n) {
+  RaySamples r;
+  r.rgb.assign(3 * size_t(n), 0.5f);
+  r.dt.assign(size_t(n), 1.f / float(n));
+  for (int i = 0; i < n; ++i) r.t.push_back((float(i) + 0.5f) / float(n));
+  r.sigma.assign(size_t(n), 0.f);
+  return r;
+}
+
 TEST(LineOfSight, GradientMatchesFiniteDifferences) {
   std::mt19937 rng(7);
   const float bg[3] = {0, 0, 0};
@@ -55,27 +85,15 @@ TEST(LineOfSight, GradientMatchesFiniteDifferences) {
     const CompositeResult f = compositeForward(n, r.sigma.data(), r.rgb.data(), r.dt.data(), r.t.data(), bg);
     std::vector<float> grad(size_t(n), 0.25f);  // the loss adds to what is there
     lineOfSightLoss(n, r.sigma.data(), r.dt.data(), r.t.data(), f, t_surf, width, scale, grad.data());
-    for (int i = 0; i < f.used; ++i) {
-      const float h = 1e-2f, x = r.sigma[size_t(i)];
-      r.sigma[size_t(i)] = x + h;
-      const double lp = losOf(r, t_surf, width);
-      r.sigma[size_t(i)] = x - h;
-      const double lm = losOf(r, t_surf, width);
-      r.sigma[size_t(i)] = x;
-      const double fd = scale * (lp - lm) / (2.0 * h);
-      ASSERT_NEAR(grad[size_t(i)] - 0.25f, fd, 1e-4 + 1e-2 * std::fabs(fd)) << "ray " << ray << " sample " << i;
-      checked += std::fabs(fd) > 1e-4;
-    }
+    checked += checkSigmaGradient(
+        r, f.used, grad, scale, [&](const RaySamples& q) { return losOf(q, t_surf, width); }, ray);
   }
   EXPECT_GT(checked, 60);
 }
 
 TEST(LineOfSight, SurfaceCostsNothingFogInFrontMostAndAMissOne) {
   const int n = 40;
-  RaySamples r;
-  r.rgb.assign(3 * n, 0.5f);
-  r.dt.assign(n, 0.025f);
-  for (int i = 0; i < n; ++i) r.t.push_back(0.0125f + 0.025f * float(i));  // 0 .. 1
+  RaySamples r = evenRay(n);  // t in 0 .. 1
   const float t_surf = 0.6f, width = 0.03f;
   auto with = [&](float lo, float hi, float density) {
     r.sigma.assign(n, 0.f);
@@ -134,17 +152,7 @@ TEST(Distortion, LossAndGradientMatchTheDefinitionAndFiniteDifferences) {
     const float scale = 0.7f;
     const float L = distortionLoss(r.sigma.data(), r.dt.data(), r.t.data(), f, scale, grad.data());
     EXPECT_NEAR(L, distortionReference(r), 1e-5 + 1e-4 * L) << "ray " << ray;
-    for (int i = 0; i < f.used; ++i) {
-      const float h = 1e-2f, x = r.sigma[size_t(i)];
-      r.sigma[size_t(i)] = x + h;
-      const double lp = distortionReference(r);
-      r.sigma[size_t(i)] = x - h;
-      const double lm = distortionReference(r);
-      r.sigma[size_t(i)] = x;
-      const double fd = scale * (lp - lm) / (2.0 * h);
-      ASSERT_NEAR(grad[size_t(i)] - 0.25f, fd, 1e-4 + 1e-2 * std::fabs(fd)) << "ray " << ray << " sample " << i;
-      checked += std::fabs(fd) > 1e-4;
-    }
+    checked += checkSigmaGradient(r, f.used, grad, scale, distortionReference, ray);
   }
   EXPECT_GT(checked, 60);
 }
@@ -153,10 +161,7 @@ TEST(Distortion, LossAndGradientMatchTheDefinitionAndFiniteDifferences) {
 // and the gradient of the fog pushes density down where the weight is far from the rest.
 TEST(Distortion, CompactSurfaceCostsLittleFogMuch) {
   const int n = 40;
-  RaySamples r;
-  r.rgb.assign(3 * n, 0.5f);
-  r.dt.assign(n, 0.025f);
-  for (int i = 0; i < n; ++i) r.t.push_back(0.0125f + 0.025f * float(i));
+  RaySamples r = evenRay(n);
   const float bg[3] = {0, 0, 0};
   auto loss = [&](std::vector<float>* g) {
     const CompositeResult f = compositeForward(n, r.sigma.data(), r.rgb.data(), r.dt.data(), r.t.data(), bg);
