@@ -21,7 +21,7 @@ DATA=${NERFSLAM_DATA_DIR:-$ROOT/../shared/data}
 JOBS=${NERFSLAM_FUZZ_BUILD_JOBS:-2}
 SEP=$'\n~~~~\n'   # section separator of multi-file inputs (test/fuzz/fuzz_common.h)
 
-ALL=(fuzz_trajectory fuzz_camera_yaml fuzz_options_yaml fuzz_image
+ALL=(fuzz_trajectory fuzz_camera_yaml fuzz_options_yaml fuzz_image fuzz_ply
      fuzz_dataset_tum fuzz_dataset_euroc fuzz_dataset_kitti fuzz_dataset_transforms
      fuzz_dataset_middlebury fuzz_dataset_strecha fuzz_dataset_tsukuba fuzz_dataset_folder fuzz_model)
 if [[ $# -gt 0 ]]; then TARGETS=("$@"); else TARGETS=("${ALL[@]}"); fi
@@ -126,6 +126,44 @@ outer:
   x: .inf
   inner: {flag: false, mode: "a", sizes: []}
 '
+
+# PLY headers: a binary cloud as PCL writes it, the sparse map's ASCII cloud, a binary mesh.
+seed fuzz_ply binary_cloud "=ply
+format binary_little_endian 1.0
+comment PCL generated
+element vertex 2
+property float x
+property float y
+property float z
+property uchar red
+property uchar green
+property uchar blue
+element camera 1
+property float view_px
+end_header
+$(printf 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx')"
+seed fuzz_ply ascii_map "=ply
+format ascii 1.0
+comment nerfslam sparse map (world frame, map units)
+element vertex 2
+property double x
+property double y
+property double z
+property int observations
+end_header
+1 2 3 4
+5 6 7 8
+"
+seed fuzz_ply binary_mesh "=ply
+format binary_big_endian 1.0
+element vertex 3
+property float x
+property float y
+property float z
+element face 1
+property list uchar int vertex_indices
+end_header
+$(printf '%049d' 0)"
 
 # readImage: the first byte picks extension and mode (test/fuzz/fuzz_image.cpp).
 img_seed() { mkdir -p "$SEEDS/fuzz_image"; { printf "\\x$(printf %02x "$2")"; cat "$3"; } >"$SEEDS/fuzz_image/$1"; }
