@@ -399,9 +399,9 @@ TEST(Trainer, SparseDepthPutsTheSurfaceAtThePoints) {
       "sparse depth: median depth error at the training views' points %.3f without them, %.3f with; "
       "in a novel view %.3f and %.3f\n",
       without.at_points, with.at_points, without.novel, with.novel);
-  // Measured (Release and ASan builds, since the first occupancy sweep takes one sample per 4^3
-  // cells): at the points 0.095-0.105 without, 0.077-0.078 with; in the novel view 0.138-0.140
-  // without, 0.085 with.
+  // Measured (Release and ASan builds, with the first occupancy sweep in blocks of 2^3 and 4^3
+  // cells): at the points 0.093-0.105 without, 0.076-0.078 with; in the novel view 0.134-0.140
+  // without, 0.085-0.088 with.
   EXPECT_LT(with.at_points, 0.87 * without.at_points);
   EXPECT_LT(with.at_points, 0.09);  // about the surface's width: 3 % of the distance (2.2)
   // Between the points the surface holds (the free-space term does not carve it), and is nearer the
