@@ -1,4 +1,5 @@
 #include "nerfslam/render/preview.h"
+#include "nerfslam/io/ply_header.h"
 
 #include <algorithm>
 #include <cmath>
@@ -80,6 +81,7 @@ const pcl::PCLPointField* findField(const pcl::PCLPointCloud2& blob, std::initia
 PreviewCloud loadPointCloudPly(const fs::path& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) fail("{}: point cloud file not found", path.string());
+  checkPlyFile(path);  // declared sizes against the file's before PCL allocates them
   pcl::PCLPointCloud2 blob;
   pcl::PLYReader reader;
   if (reader.read(path.string(), blob) < 0) fail("{}: not a readable PLY point cloud", path.string());
