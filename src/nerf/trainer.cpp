@@ -8,7 +8,6 @@
 #include <thread>
 
 #include <spdlog/spdlog.h>
-#include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/error.h"
 #include "nerfslam/nerf/composite.h"
@@ -440,7 +439,8 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
 }
 
 // Sums the threads' results into stats (wall time per stage: the slowest thread's) and, when the
-// loss is finite, updates the per-view losses. Returns the summed loss.
+// loss is finite, updates the per-view losses. Returns the sum of every loss term (the step's
+// divergence check: finite or not).
 double Trainer::gatherThreads(StepStats* stats) {
   double loss = 0, depth_loss = 0, distortion_loss = 0;
   for (const auto& ts : threads_) {
@@ -471,7 +471,7 @@ double Trainer::gatherThreads(StepStats* stats) {
   stats->loss = stats->rays > 0 ? loss / double(stats->rays) : 0.0;
   stats->depth_loss = stats->depth_rays > 0 ? depth_loss / double(stats->depth_rays) : 0.0;
   stats->distortion_loss = stats->rays > 0 ? distortion_loss / double(stats->rays) : 0.0;
-  return loss + depth_loss + opt_.distortion_weight * distortion_loss;
+  return loss + depth_loss + distortion_loss;
 }
 
 // Applies the threads' gradients with Adam (the mean-per-ray loss: scaled by 1/rays). False when
