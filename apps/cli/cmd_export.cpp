@@ -16,6 +16,7 @@ struct ExportArgs {
   double threshold = 2.5;
   int subdivision = 2;
   int threads = 2;
+  size_t max_triangles = nerf::ExportOptions{}.max_triangles;
 };
 
 int runExport(const ExportArgs& a) {
@@ -24,10 +25,15 @@ int runExport(const ExportArgs& a) {
   o.density_threshold = a.threshold;
   o.subdivision = a.subdivision;
   o.threads = a.threads;
+  o.max_triangles = a.max_triangles;
   const std::filesystem::path out(a.out);
   if (a.format == "mesh") {
     if (out.extension() != ".ply") fail("{}: meshes are written as .ply", a.out);
-    const auto mesh = nerf::extractMesh(model, o);
+    nerf::MeshStats ms;
+    const auto mesh = nerf::extractMesh(model, o, &ms);
+    if (ms.density_threshold > a.threshold)
+      spdlog::warn("export: {} triangles at threshold {:.3g}, over --max-triangles {}: threshold raised to {:.3g}",
+                   ms.triangles_at_requested_threshold, a.threshold, a.max_triangles, ms.density_threshold);
     nerf::saveMesh(mesh, out);
     spdlog::info("export: mesh with {} triangles and {} vertices -> {}", mesh.polygons.size(),
                  size_t(mesh.cloud.width) * mesh.cloud.height, a.out);
@@ -53,6 +59,8 @@ Registrar reg("export", "Export a point cloud (PLY/PCD) or a mesh (PLY) from a N
                     ->check(nerfslam::cli::kPositive);
                 sub.add_option("--subdivision", a->subdivision, "Grid cells per occupancy cell per axis")
                     ->check(CLI::Range(1, 8));
+                sub.add_option("--max-triangles", a->max_triangles,
+                               "Mesh: above this many triangles the threshold is raised until it fits (0: no limit)");
                 sub.add_option("--threads", a->threads, "Threads")->check(CLI::Range(1, 256));
                 return [a]() -> int { return runExport(*a); };
               });

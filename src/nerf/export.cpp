@@ -136,7 +136,7 @@ pcl::PointCloud<pcl::PointXYZRGB> depthPointCloud(const NerfModel& model, const 
   return cloud;
 }
 
-pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& opt) {
+pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& opt, MeshStats* stats) {
   checkOptions(opt);
   const int S = opt.subdivision, R = OccupancyGrid::kRes;
   const int N = R * S;             // cells per axis
@@ -173,7 +173,33 @@ pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& opt) {
   need.clear();
   need.shrink_to_fit();
 
-  const float iso = float(opt.density_threshold);
+  // Six tetrahedra around the diagonal 0-7 (corner c = x + 2y + 4z).
+  static const int kTets[6][4] = {{0, 1, 3, 7}, {0, 3, 2, 7}, {0, 2, 6, 7}, {0, 6, 4, 7}, {0, 4, 5, 7}, {0, 5, 1, 7}};
+  // Triangles the marching below makes at `iso` (a tetrahedron with one corner apart gives one, two
+  // and two give a quad: two), without making them.
+  auto countTriangles = [&](float iso) {
+    size_t count = 0;
+    for (int k = 0; k < N; ++k)
+      for (int j = 0; j < N; ++j)
+        for (int i = 0; i < N; ++i) {
+          if (!cube[size_t(i) + size_t(N) * (size_t(j) + size_t(N) * size_t(k))]) continue;
+          int inside = 0;
+          for (int c = 0; c < 8; ++c)
+            inside |= int(field[vid(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1))] > iso) << c;
+          if (inside == 0 || inside == 255) continue;
+          for (const auto& tet : kTets) {
+            int ni = 0;
+            for (int q = 0; q < 4; ++q) ni += (inside >> tet[q]) & 1;
+            count += ni == 0 || ni == 4 ? 0 : ni == 2 ? 2 : 1;
+          }
+        }
+    return count;
+  };
+  float iso = float(opt.density_threshold);
+  const size_t requested = opt.max_triangles > 0 || stats ? countTriangles(iso) : 0;
+  for (size_t n = requested; opt.max_triangles > 0 && n > opt.max_triangles && iso < 1e30f; n = countTriangles(iso))
+    iso *= 1.25f;
+  if (stats) *stats = {double(iso), requested};
   std::unordered_map<uint64_t, uint32_t> edge_vertex;
   std::vector<float> verts;  // NeRF space
   std::vector<uint32_t> tris;
@@ -189,8 +215,6 @@ pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& opt) {
     edge_vertex.emplace(key, idx);
     return idx;
   };
-  // Six tetrahedra around the diagonal 0-7 (corner c = x + 2y + 4z).
-  static const int kTets[6][4] = {{0, 1, 3, 7}, {0, 3, 2, 7}, {0, 2, 6, 7}, {0, 6, 4, 7}, {0, 4, 5, 7}, {0, 5, 1, 7}};
   for (int k = 0; k < N; ++k)
     for (int j = 0; j < N; ++j)
       for (int i = 0; i < N; ++i) {

@@ -295,10 +295,14 @@ void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vec
       dense->colors.emplace_back(p.b, p.g, p.r);
     }
   }
-  const auto mesh = nerf::extractMesh(model, xo);
+  xo.max_triangles = eo.mesh_max_triangles;
+  nerf::MeshStats ms;
+  const auto mesh = nerf::extractMesh(model, xo, &ms);
   nerf::saveMesh(mesh, out / "mesh.ply");
   addRunOutput(rep, "mesh.ply");
   rep["mesh_triangles"] = mesh.polygons.size();
+  rep["mesh_density_threshold"] = ms.density_threshold;
+  rep["mesh_triangles_at_default_threshold"] = ms.triangles_at_requested_threshold;
 }
 
 // nerf/flythrough.mp4 and its entry in report.json (an error there is reported, not fatal).

@@ -85,6 +85,30 @@ TEST(Trainer, SyntheticSphereReachesPsnrFloor) {
   std::nth_element(err.begin(), err.begin() + long(err.size() / 2), err.end());
   std::printf("mesh: %zu triangles, median |r - 0.8| = %.4f\n", mesh.polygons.size(), err[err.size() / 2]);
   EXPECT_LT(err[err.size() / 2], 0.12);
+  // A triangle budget a third of that mesh's: the threshold is raised until the mesh fits. What goes
+  // is the field's least dense structure, which here is inside the sphere (its interior is never seen,
+  // so it holds blobs of any density) as well as on it: the capped mesh stays inside the sphere.
+  auto radiusQuantile = [](const pcl::PointCloud<pcl::PointXYZRGB>& pts, double q) {
+    std::vector<double> r;
+    for (const auto& p : pts) r.push_back(Eigen::Vector3d(p.x, p.y, p.z).norm());
+    std::nth_element(r.begin(), r.begin() + long(q * double(r.size() - 1)), r.end());
+    return r[size_t(q * double(r.size() - 1))];
+  };
+  const double r95 = radiusQuantile(verts, 0.95);
+  MeshStats ms;
+  eo.max_triangles = mesh.polygons.size() / 3;
+  const pcl::PolygonMesh capped = extractMesh(model, eo, &ms);
+  EXPECT_GE(ms.triangles_at_requested_threshold, mesh.polygons.size());
+  EXPECT_GT(ms.density_threshold, eo.density_threshold);
+  EXPECT_LE(capped.polygons.size(), eo.max_triangles);
+  EXPECT_GT(capped.polygons.size(), eo.max_triangles / 4);
+  pcl::fromPCLPointCloud2(capped.cloud, verts);
+  const double capped_r95 = radiusQuantile(verts, 0.95);
+  std::printf("mesh capped at %zu: %zu triangles at threshold %.1f; 95th percentile of |r| %.3f (uncapped %.3f)\n",
+              eo.max_triangles, capped.polygons.size(), ms.density_threshold, capped_r95, r95);
+  EXPECT_LT(capped_r95, kSphereRadius + 0.12);
+  EXPECT_LT(capped_r95, r95 + 0.02);
+  eo.max_triangles = ExportOptions{}.max_triangles;
   std::vector<PosedCamera> cams;
   for (const auto& v : test) cams.push_back({v.camera, v.T_world_cam});
   const auto cloud = depthPointCloud(model, cams, eo);
@@ -107,6 +131,11 @@ TEST(Trainer, SyntheticSphereReachesPsnrFloor) {
   auto r2 = test::runCli("export --model " + m + " --format mesh --threshold 20 --out " + (dir / "mesh.ply").string());
   EXPECT_EQ(r2.exit_code, 0) << r2.output;
   EXPECT_TRUE(std::filesystem::exists(dir / "mesh.ply"));
+  auto r2c = test::runCli("export --model " + m + " --format mesh --threshold 20 --max-triangles 100000 --out " +
+                          (dir / "small.ply").string());
+  EXPECT_EQ(r2c.exit_code, 0) << r2c.output;
+  EXPECT_NE(r2c.output.find("threshold raised"), std::string::npos) << r2c.output;
+  EXPECT_LT(std::filesystem::file_size(dir / "small.ply"), std::filesystem::file_size(dir / "mesh.ply") / 4);
   auto r3 = test::runCli("export --model " + m + " --format pcd --threshold 20 --out " + (dir / "c.pcd").string());
   EXPECT_EQ(r3.exit_code, 0) << r3.output;
   EXPECT_TRUE(std::filesystem::exists(dir / "c.pcd"));

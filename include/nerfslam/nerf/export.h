@@ -10,6 +10,9 @@
 //   cube split into six tetrahedra around its main diagonal; no ambiguous cases, watertight) on a
 //   grid of 128 * subdivision cells over cascade 0, evaluated only near occupied cells. Triangles face
 //   outwards (towards decreasing density); vertex colours are the field's colour seen along -normal.
+//   A mesh over max_triangles is not written whole: the threshold is raised (x1.25 at a time, the
+//   density values already queried are reused) until it fits, so a foggy field (a street: tens of
+//   millions of triangles, most of them fog) keeps its densest surfaces; MeshStats says what was used.
 // The density threshold is in the field's units (1 / NeRF-space length); instant-ngp's default
 // mesh threshold is 2.5 in the same units.
 #include <filesystem>
@@ -29,8 +32,9 @@ struct ExportOptions {
   double density_threshold = 2.5;
   int subdivision = 2;  // grid cells per occupancy cell along each axis
   int threads = 2;
-  double min_opacity = 0.9;  // depthPointCloud
-  int pixel_stride = 2;      // depthPointCloud: every n-th pixel in x and y
+  double min_opacity = 0.9;          // depthPointCloud
+  int pixel_stride = 2;              // depthPointCloud: every n-th pixel in x and y
+  size_t max_triangles = 5'000'000;  // extractMesh: raise the threshold above this (0: no limit)
 };
 
 pcl::PointCloud<pcl::PointXYZRGB> densityPointCloud(const NerfModel& model, const ExportOptions& options = {});
@@ -50,7 +54,11 @@ pcl::PointCloud<pcl::PointXYZRGB> depthPointCloud(const NerfModel& model, const 
                                                   const ExportOptions& options = {},
                                                   std::vector<DepthPointQuality>* quality = nullptr);
 
-pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& options = {});
+struct MeshStats {
+  double density_threshold = 0;  // the threshold the mesh was extracted at
+  size_t triangles_at_requested_threshold = 0;
+};
+pcl::PolygonMesh extractMesh(const NerfModel& model, const ExportOptions& options = {}, MeshStats* stats = nullptr);
 
 // Atomic writers (core/atomic_file.h: a temporary file, then rename), every write checked: a full disk
 // is an Error naming the file ("mesh.ply: write failed (disk full?)") and leaves no cut-off file. The

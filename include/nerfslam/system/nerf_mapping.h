@@ -64,6 +64,7 @@ struct NerfEvalOptions {
   int cloud_views = 8;               // training views back-projected into nerf_cloud and map_preview.png
   int flythrough_frames = 60;        // renders along the trajectory in nerf/flythrough.mp4 (0: none)
   double flythrough_seconds = 30.0;  // time budget of the fly-through (fewer frames when slower)
+  int64_t mesh_max_triangles = 5'000'000;  // mesh.ply: the density threshold is raised above this
   // Set by the run, not options:
   int threads = 2;
   // Write nerf/model.nerf and the training statistics only: no renders, cloud, mesh or fly-through
@@ -86,6 +87,10 @@ struct NerfEvalOptions {
       "Time budget of the fly-through: when its first frame says the rest would take longer, fewer frames (at "
       "least 2) cover the trajectory (0: no limit)",
       check::range(0.0, 1e6));
+    v("mesh_max_triangles", mesh_max_triangles,
+      "mesh.ply's size: above this many triangles its density threshold is raised (x1.25 at a time) until it "
+      "fits, so fog goes before surfaces (report.json: mesh_density_threshold; 0: no limit)",
+      check::range<int64_t>(0, int64_t(1) << 40));
   }
 };
 
