@@ -253,6 +253,24 @@ static void colorTile(const RadianceField::Impl& f, size_t m, const float* cin, 
 // ---------------------------------------------------------------------------------------------
 // Inference.
 
+// dL/dpos of a backward tile's samples (positions pos, m*3; d_enc sample-major [m][E]), levels
+// weighted, written to dL_dpos[3 * idx[i]].
+static void positionGradientTile(const RadianceField::Impl& f, size_t m, const float* pos, const float* d_enc,
+                                 const float* level_weights, const uint32_t* idx, float* dL_dpos) {
+  const size_t E = size_t(f.n_enc);
+  std::vector<float> weighted;
+  if (level_weights) {
+    weighted.assign(d_enc, d_enc + m * E);
+    for (size_t i = 0; i < m; ++i)
+      for (size_t k = 0; k < E; ++k) weighted[i * E + k] *= level_weights[k / 2];
+    d_enc = weighted.data();
+  }
+  std::vector<float> out(3 * m);
+  hashEncodePositionGradient(f.grid(), pos, m, d_enc, out.data());
+  for (size_t i = 0; i < m; ++i)
+    for (size_t d = 0; d < 3; ++d) dL_dpos[3 * size_t(idx[i]) + d] = out[3 * i + d];
+}
+
 void RadianceField::queryDensity(const float* pos, size_t n, float* sigma) const {
   const Impl& f = *impl_;
   const size_t H = size_t(f.H);
@@ -420,7 +438,8 @@ void RadianceField::forwardColor(Workspace& wsp, const uint8_t* needed, float* r
   if (rgb) std::copy(ws.rgb.begin(), ws.rgb.begin() + long(3 * n), rgb);
 }
 
-void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float* dL_drgb, Gradients& grads) const {
+void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float* dL_drgb, Gradients& grads,
+                             float* dL_dpos, const float* level_weights) const {
   const Impl& f = *impl_;
   Workspace::Impl& ws = *wsp.impl_;
   Gradients::Impl& g = *grads.impl_;
@@ -438,6 +457,7 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
     if (nz) live.push_back(uint32_t(i));
   }
   const size_t nl = live.size();
+  if (dL_dpos) std::fill(dL_dpos, dL_dpos + 3 * n, 0.f);
   // Record the live samples as one segment of the deferred hash-grid gradient.
   const size_t seg0 = g.n, denc0 = g.seg_denc.empty() ? 0 : g.seg_denc.back() + E * (g.n - g.seg_begin.back());
   g.seg_begin.push_back(seg0);
@@ -518,6 +538,8 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
             H));
     gemm(mm(E, H, m, encT, kTile, 1, ws.dh1.data(), H, gw + f.off_d0, H, Epilogue::kNone, nullptr, 0, true));
     gemm(mm(m, E, H, ws.dh1.data(), H, 1, f.WT(f.off_d0), E, ws.denc.data(), E));
+    if (dL_dpos)
+      positionGradientTile(f, m, g.pos.data() + 3 * (seg0 + j0), ws.denc.data(), level_weights, idx, dL_dpos);
     // Keep d_enc level-major for the optimiser's per-level scatter.
     for (size_t l = 0; l < E / 2; ++l) {
       float* dst = seg_denc + l * 2 * nl + 2 * j0;

@@ -52,12 +52,15 @@ struct Trainer::ThreadState {
   RadianceField::Workspace ws;
   RadianceField::Gradients grads;
   std::vector<float> pos, fpos, dir, t, dt, sigma, rgb, d_sigma, d_rgb;
-  std::vector<uint8_t> needed;  // samples before their ray's early termination (colour evaluated)
-  std::vector<float> bg_grad;   // dL/d(learned background logits) of the step
-  std::vector<float> app_grad;  // dL/d(appearance) per view (Appearance::kParams each) of the step
+  std::vector<uint8_t> needed;    // samples before their ray's early termination (colour evaluated)
+  std::vector<float> bg_grad;     // dL/d(learned background logits) of the step
+  std::vector<float> app_grad;    // dL/d(appearance) per view (Appearance::kParams each) of the step
+  std::vector<float> d_pos;       // dL/d(sample position), field coordinates (steps that refine poses)
+  std::vector<double> pose_grad;  // dL/d(pose correction) per view (6 each) of the step
   struct RayInfo {
     int offset, count, view;
-    int used = 0;  // samples before early termination (those with a colour)
+    Eigen::Vector3f origin;  // NeRF space
+    int used = 0;            // samples before early termination (those with a colour)
     float target[3], bg[3];
     float t_surf = -1.f;  // > 0: the ray passes through a surface point at this NeRF-space distance
     float surf_width = 0.f, surf_weight = 0.f;
@@ -74,7 +77,7 @@ struct Trainer::ThreadState {
 };
 
 Trainer::Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options)
-    : model_(model), appearance_opt_(model.field->config().adam), opt_(options) {
+    : model_(model), appearance_opt_(model.field->config().adam), pose_opt_(model.field->config().adam), opt_(options) {
   if (views.empty()) fail("NeRF training: no training views");
   if (opt_.threads < 1) fail("NeRF training: threads must be >= 1");
   views_.reserve(views.size());
@@ -199,6 +202,7 @@ void Trainer::snapshot() {
       }
     snap_background_ = model_.background->logits();
   }
+  snap_pose_corr_ = pose_corr_;
   snap_grid_ = model_.grid->values();
   snap_threshold_ = model_.grid->threshold();
   snap_step_ = step_;
@@ -219,6 +223,10 @@ void Trainer::rollback() {
     model_.background->resetOptimizer();
   }
   model_.grid->setValues(snap_grid_, snap_threshold_);
+  for (size_t v = 0; v < pose_corr_.size(); ++v) {
+    pose_corr_[v] = v < snap_pose_corr_.size() ? snap_pose_corr_[v] : PoseCorrection{};
+    pose_opt_.reset(v);
+  }
   ++rollbacks_;
 }
 
@@ -231,6 +239,7 @@ struct Trainer::StepPlan {
   bool depth = false;  // draw depth-supervised rays through views' surface points
   float depth_fraction = 0, depth_weight = 0;
   float distortion_weight = 0;  // TrainOptions::distortion_weight
+  bool refine_poses = false;    // back-propagate to the sample positions and the views' poses
 };
 
 // A thread's ray draws over one step: which view, pixel, jitter and background.
@@ -263,11 +272,11 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
     const float jt = pick.u01(ts.rng);
     float t_surf = -1.f, surf_weight = 0.f;
     if (plan.depth && !views_[vi].points.empty() && pick.u01(ts.rng) < plan.depth_fraction)
-      t_surf = throughSurfacePoint(views_[vi], ts.rng, &px, &py, &ju, &jv, &surf_weight);
+      t_surf = throughSurfacePoint(views_[vi], step_poses_[vi], ts.rng, &px, &py, &ju, &jv, &surf_weight);
     float bg[3] = {1.f, 1.f, 1.f};
     if (opt_.random_background)
       for (float& b : bg) b = pick.u01(ts.rng);
-    const RayGenerator gen(views_[vi].camera, views_[vi].T_world_cam, model_.scene);
+    const RayGenerator gen(views_[vi].camera, step_poses_[vi], model_.scene);
     const Ray ray = gen.ray(px + ju, py + jv);
     const bool learned_bg = model_.background && !im.has_alpha;
     RayMarcher marcher(ray, *model_.grid, model_.scene, plan.march, jt);
@@ -284,6 +293,7 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
     ri.offset = used;
     ri.count = n;
     ri.view = int(vi);
+    ri.origin = ray.origin;
     if (t_surf > 0.f) {
       ri.t_surf = t_surf;
       ri.surf_weight = surf_weight;
@@ -316,10 +326,10 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
 // A depth-supervised ray: a random surface point of the view that projects into its image sets the
 // pixel (and the sub-pixel offset, so the ray passes through the point); returns the point's
 // NeRF-space distance from the camera, or -1 (the ray stays as drawn) when it does not project.
-float Trainer::throughSurfacePoint(const TrainingView& v, std::mt19937_64& rng, int* px, int* py, float* ju, float* jv,
-                                   float* weight) const {
+float Trainer::throughSurfacePoint(const TrainingView& v, const SE3& T_world_cam, std::mt19937_64& rng, int* px,
+                                   int* py, float* ju, float* jv, float* weight) const {
   const SurfacePoint& sp = v.points[std::uniform_int_distribution<size_t>(0, v.points.size() - 1)(rng)];
-  const Eigen::Vector3d p_cam = v.T_world_cam.inverse() * sp.position.cast<double>();
+  const Eigen::Vector3d p_cam = T_world_cam.inverse() * sp.position.cast<double>();
   Eigen::Vector2d uv;
   if (!v.camera.projectInImage(p_cam, &uv)) return -1.f;
   const int x = std::clamp(int(std::lround(uv.x())), 0, v.camera.width - 1);
@@ -403,6 +413,10 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
   ts.num_samples = 0;
   const size_t cap = size_t(plan.chunk + opt_.max_samples_per_ray);
   for (auto* v : {&ts.pos, &ts.dir, &ts.fpos, &ts.rgb, &ts.d_rgb}) v->resize(3 * cap);
+  if (plan.refine_poses) {
+    ts.d_pos.resize(3 * cap);
+    ts.pose_grad.assign(6 * views_.size(), 0.0);
+  }
   for (auto* v : {&ts.t, &ts.dt, &ts.sigma, &ts.d_sigma}) v->resize(cap);
   if (model_.background && ts.bg_grad.size() != model_.background->numParameters())
     ts.bg_grad.assign(model_.background->numParameters(), 0.f);
@@ -432,7 +446,18 @@ void Trainer::trainThread(ThreadState& ts, const StepPlan& plan) {
     ts.times.composite += since(t0);
 
     t0 = Clock::now();
-    model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads);
+    if (plan.refine_poses) {
+      model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads, ts.d_pos.data(),
+                             level_weights_.data());
+      // Field coordinates are NeRF space / aabb_scale around the box centre: dq/dp = fieldCoordScale.
+      const float dq = model_.fieldCoordScale();
+      for (int k = 0; k < 3 * used; ++k) ts.d_pos[size_t(k)] *= dq;
+      for (const auto& ri : ts.rays)
+        accumulatePoseGradient(ri.origin, ts.pos.data() + 3 * ri.offset, ts.d_pos.data() + 3 * ri.offset, ri.used,
+                               model_.scene.scale, ts.pose_grad.data() + 6 * size_t(ri.view));
+    } else {
+      model_.field->backward(ts.ws, ts.d_sigma.data(), ts.d_rgb.data(), ts.grads);
+    }
     ts.times.field_backward += since(t0);
   }
   ts.num_samples = total;
@@ -580,6 +605,8 @@ StepStats Trainer::step() {
   plan.depth_fraction = float(opt_.depth_ray_fraction);
   plan.depth_weight = float(opt_.depth_weight);
   plan.distortion_weight = float(opt_.distortion_weight);
+  plan.refine_poses = refinesPosesThisStep();
+  preparePoses(plan.refine_poses);
   parallelRun(T, [&](int ti) { trainThread(*threads_[size_t(ti)], plan); });
 
   const double loss = gatherThreads(&stats);
@@ -599,6 +626,16 @@ StepStats Trainer::step() {
     stats.rolled_back = true;
     ++step_;
     return stats;
+  }
+  if (plan.refine_poses) {  // the threads' pose gradients and rays per view, summed in thread order
+    std::vector<double> grad(6 * views_.size(), 0.0);
+    std::vector<int> rays(views_.size(), 0);
+    for (const auto& ts : threads_)
+      for (size_t v = 0; v < views_.size(); ++v) {
+        rays[v] += ts->view_rays[v];
+        for (size_t k = 0; k < 6; ++k) grad[6 * v + k] += ts->pose_grad[6 * v + k];
+      }
+    stepPoses(grad, rays);
   }
   ++step_;
   model_.training_steps = uint64_t(step_);

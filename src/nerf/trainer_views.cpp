@@ -119,6 +119,7 @@ size_t Trainer::addView(TrainingView view) {
   images_.push_back(toImageData(view.image));
   view.image.release();  // keep only the compact copy
   appearance_.emplace_back();
+  pose_corr_.emplace_back();
   std::vector<SurfacePoint> points = std::move(view.points);
   if (opt_.learned_background && !images_.back().has_alpha && !model_.background) {
     model_.background =

@@ -378,9 +378,12 @@ void NerfMapping::measurePsnr() {
       sum += loss[i];
       ++n;
     }
+  const auto poses =
+      opt_.train.pose_refinement ? trainer_->poseRefinementStats() : nerf::Trainer::PoseRefinementStats{};
+  std::lock_guard<std::mutex> s(stats_mutex_);
+  stats_.pose_refinement = poses;
   if (n == 0) return;
   const double mse = std::max(2.0 * opt_.train.huber_delta * (sum / n) / 3.0, 1e-10);
-  std::lock_guard<std::mutex> s(stats_mutex_);
   stats_.psnr_recent = -10.0 * std::log10(mse);
 }
 
@@ -428,14 +431,19 @@ void NerfMapping::refit() {
                how);
   std::vector<nerf::TrainingView> views;
   std::vector<nerf::Appearance> appearance;
+  std::vector<nerf::PoseCorrection> corrections;
   for (size_t i = 0; i < trainer_->numViews(); ++i) {
     views.push_back(trainer_->view(i));
     appearance.push_back(trainer_->viewAppearance(i));
+    corrections.push_back(trainer_->viewPoseCorrection(i));
   }
   trainer_.reset();
   model_ = std::move(fresh);
   trainer_ = std::make_unique<nerf::Trainer>(*model_, std::move(views), opt_.train);
-  for (size_t i = 0; i < appearance.size(); ++i) trainer_->setViewAppearance(i, appearance[i]);
+  for (size_t i = 0; i < appearance.size(); ++i) {
+    trainer_->setViewAppearance(i, appearance[i]);
+    trainer_->setViewPoseCorrection(i, corrections[i]);
+  }
   seen_map_version_ = 0;
   refreshPoses();
   updateWeights();

@@ -245,6 +245,12 @@ void reportNerfStats(const NerfMappingStats& st, nlohmann::json& rep) {
   rep["nerf_keyframes_dropped"] = st.keyframes_dropped;
   rep["nerf_keyframes_skipped"] = st.keyframes_skipped;
   rep["nerf_keyframes_held_out"] = st.keyframes_held_out;
+  if (st.pose_refinement.steps > 0)
+    rep["nerf_pose_refinement"] = {{"steps", st.pose_refinement.steps},
+                                   {"resets", st.pose_refinement.resets},
+                                   {"views_measured", st.pose_refinement.views},
+                                   {"median_shift_px", st.pose_refinement.median_shift_px},
+                                   {"max_shift_px", st.pose_refinement.max_shift_px}};
 }
 
 // Median |s * depth - gt| / gt of a render against the dataset's depth image nearest `timestamp`

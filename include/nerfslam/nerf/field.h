@@ -151,7 +151,14 @@ class RadianceField {
   // parameter gradients into `grads`. Either pointer may be null (treated as zeros). Samples whose
   // gradients are all exactly zero (e.g. past a ray's early termination) are skipped: they add
   // nothing, and the MLP backward and the hash-grid scatter then run on the others only.
-  void backward(Workspace& ws, const float* dL_dsigma, const float* dL_drgb, Gradients& grads) const;
+  //
+  // dL_dpos (optional, n*3): also the loss gradient with respect to each sample's position (unit-cube
+  // field coordinates) through the density network and the encoding (not through the direction),
+  // with level l of the encoding weighted by level_weights[l] when given (a coarse-to-fine schedule,
+  // as BARF's, for pose refinement). Skipped samples get 0. Costs a scalar pass over the samples'
+  // grid corners.
+  void backward(Workspace& ws, const float* dL_dsigma, const float* dL_drgb, Gradients& grads, float* dL_dpos = nullptr,
+                const float* level_weights = nullptr) const;
   // Sums the per-thread gradients in the given order (deterministic), applies Adam with learning
   // rate `lr` (see adam.h for the sparse update rule), and clears the gradients. Only hash entries
   // some thread touched are updated. n_threads workers split the entries; the result does not

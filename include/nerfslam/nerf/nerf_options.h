@@ -90,6 +90,23 @@ struct TrainOptions {
   bool appearance = true;
   double appearance_lr = 2e-3;
   double appearance_reg = 1e-2;
+  // Pose refinement by the field (pose_refine.h): each view's pose is corrected by the photometric
+  // gradient through its rays' samples, every pose_refine_interval steps from step
+  // pose_refine_start on (the field first learns the scene at the given poses), coarse to fine over
+  // the hash levels during the first pose_c2f_steps refinement steps. Rotation learning rate
+  // pose_lr (rad), translation pose_lr x the scene's size per radian; L2 pull pose_reg towards the
+  // given pose. A correction beyond pose_max_rotation_deg or pose_max_translation (fraction of the
+  // distance from the view to the scene box's centre) is reset and counted. The mean correction over
+  // the views is taken out after each update (the gauge: the field stays in the frame of the given
+  // poses, where held-out frames are rendered).
+  bool pose_refinement = false;
+  double pose_lr = 1e-3;
+  int pose_refine_interval = 2;
+  int pose_refine_start = 100;
+  int pose_c2f_steps = 1000;
+  double pose_reg = 1e-2;
+  double pose_max_rotation_deg = 5.0;
+  double pose_max_translation = 0.1;
   // Divergence guard: parameters are snapshotted every snapshot_interval steps; a non-finite loss
   // restores the snapshot (and restarts Adam's moments).
   int snapshot_interval = 100;
@@ -140,6 +157,20 @@ struct TrainOptions {
     v("appearance_lr", appearance_lr, "Adam learning rate of the per-view appearance", check::range(0.0, 1.0));
     v("appearance_reg", appearance_reg, "L2 weight pulling each view's appearance towards identity",
       check::range(0.0, 100.0));
+    v("pose_refinement", pose_refinement,
+      "Refine each view's pose by the photometric gradient (BARF-style, coarse to fine over the hash levels)");
+    v("pose_lr", pose_lr, "Adam learning rate of the pose corrections (radians; translation scaled by the scene)",
+      check::range(0.0, 1.0));
+    v("pose_refine_interval", pose_refine_interval, "Steps between pose updates", check::range(1, 1000000));
+    v("pose_refine_start", pose_refine_start, "First step that refines poses", check::range(0, 100000000));
+    v("pose_c2f_steps", pose_c2f_steps, "Refinement steps over which the hash levels join the pose gradient",
+      check::range(1, 100000000));
+    v("pose_reg", pose_reg, "L2 weight pulling each correction towards the given pose", check::range(0.0, 100.0));
+    v("pose_max_rotation_deg", pose_max_rotation_deg, "A larger rotation correction is reset (diverged)",
+      check::range(0.01, 90.0));
+    v("pose_max_translation", pose_max_translation,
+      "A larger translation correction (fraction of the view's distance to the box centre) is reset",
+      check::range(1e-4, 10.0));
     v("snapshot_interval", snapshot_interval, "Steps between divergence snapshots", check::positive<int>());
     v("threads", threads, "Training threads", check::range(1, 256));
     v("seed", seed, "Random seed", check::nonNegative<int64_t>());

@@ -25,6 +25,7 @@
 #include "nerfslam/nerf/appearance.h"
 #include "nerfslam/nerf/model_io.h"
 #include "nerfslam/nerf/nerf_options.h"
+#include "nerfslam/nerf/pose_refine.h"
 
 namespace nerfslam::nerf {
 
@@ -125,6 +126,21 @@ class Trainer {
   void setViewAppearance(size_t i, const Appearance& a);
   // appearanceNear (appearance.h) over the training views: for a frame rendered at `pose`.
   Appearance appearanceNear(const SE3& pose) const;
+  // Pose refinement (TrainOptions::pose_refinement, pose_refine.h): viewPose(i) is the pose the view
+  // was given (its anchor; setViewPose re-anchors it and keeps the correction), refinedViewPose(i)
+  // the one its rays are drawn from. trainer_poses.cpp.
+  SE3 refinedViewPose(size_t i) const;
+  const PoseCorrection& viewPoseCorrection(size_t i) const { return pose_corr_.at(i); }
+  void setViewPoseCorrection(size_t i, const PoseCorrection& c);
+  struct PoseRefinementStats {
+    int views = 0;               // views with surface points that project at both poses
+    double median_shift_px = 0;  // over those views, of each view's median reprojection shift
+    double max_shift_px = 0;     // of the same
+    int64_t resets = 0;          // corrections reset as diverged (pose_max_*)
+    int64_t steps = 0;           // steps that refined poses
+  };
+  // How far the refinement moved the views: their surface points' reprojections, anchor vs refined.
+  PoseRefinementStats poseRefinementStats() const;
   // Relative probability of drawing each view's rays (one finite weight >= 0 per view, not all
   // zero); empty: uniform. Views added later get weight 1 until the next call.
   void setViewWeights(std::vector<double> weights);
@@ -143,6 +159,9 @@ class Trainer {
   struct RayPicker;
   void rollback();
   bool learnsAppearance(size_t view) const;
+  bool refinesPosesThisStep() const;
+  void preparePoses(bool refine);
+  void stepPoses(const std::vector<double>& grad, const std::vector<int>& rays);
   void stepAppearance();
   std::vector<Eigen::Vector3f> surfacePointsNerf() const;
   std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> freeSpaceSegments() const;
@@ -153,8 +172,8 @@ class Trainer {
   int marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, int total, int* attempts, bool* full);
   void forwardChunk(ThreadState& ts, int used);
   void compositeChunk(ThreadState& ts, const StepPlan& plan);
-  float throughSurfacePoint(const TrainingView& v, std::mt19937_64& rng, int* px, int* py, float* ju, float* jv,
-                            float* weight) const;
+  float throughSurfacePoint(const TrainingView& v, const SE3& T_world_cam, std::mt19937_64& rng, int* px, int* py,
+                            float* ju, float* jv, float* weight) const;
   double gatherThreads(StepStats* stats);
   bool applyGradients(int64_t rays, StepStats* stats);
 
@@ -165,6 +184,12 @@ class Trainer {
   std::vector<double> view_loss_;
   std::vector<Appearance> appearance_;
   AppearanceOptimizer appearance_opt_;
+  std::vector<PoseCorrection> pose_corr_;
+  PoseOptimizer pose_opt_;
+  std::vector<SE3> step_poses_;       // the poses this step's rays are drawn from (refined)
+  std::vector<float> level_weights_;  // BARF's window over the hash levels for this step
+  int64_t pose_steps_ = 0, pose_resets_ = 0;
+  std::vector<PoseCorrection> snap_pose_corr_;
   TrainOptions opt_;
   std::vector<std::unique_ptr<ThreadState>> threads_;
   int64_t step_ = 0;

@@ -200,6 +200,9 @@ struct NerfMappingStats {
   double steps_per_second = 0;      // over the last few seconds
   double samples_per_second = 0;
   double psnr_recent = 0;  // PSNR of the training rays of the newest keyframes (0 before any)
+  // How far the field moved the training views' poses (train.pose_refinement; updated with
+  // psnr_recent): reprojection shift of each view's map points, anchor (bundle-adjusted) vs refined.
+  nerf::Trainer::PoseRefinementStats pose_refinement;
   // PSNR of renders of the newest held-out keyframes (holdout_every; with their nearest view's
   // appearance, heldout_downscale smaller than the training views), every heldout_interval_s; 0
   // before the first.
