@@ -1,0 +1,532 @@
+#include "nerfslam/nerf/voxel_map.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+#include <Eigen/Eigenvalues>
+#include <fmt/format.h>
+#include <octomap/OcTree.h>
+
+#include "nerfslam/core/atomic_file.h"
+#include "nerfslam/core/error.h"
+#include "nerfslam/nerf/trainer.h"
+
+namespace nerfslam::nerf {
+namespace fs = std::filesystem;
+
+namespace {
+
+double logit(double p) { return std::log(p / (1 - p)); }
+
+// OctoMap's keys: voxel index i (floor(coord / resolution)) is key i + 32768, a uint16.
+constexpr int kOctomapKeyOffset = 32768;
+
+double bytesPerVoxel(int threads) {
+  // density (float), log-odds (float), state (byte), per-thread hits and misses while carving (2 x u32)
+  return 4.0 + 4.0 + 1.0 + 8.0 * double(std::max(1, threads));
+}
+
+}  // namespace
+
+void validate(const VoxelMapOptions& o) {
+  if (!(o.resolution > 0) || !std::isfinite(o.resolution))
+    fail("occupancy: resolution must be > 0 (is {})", o.resolution);
+  if (!(o.occupied_opacity > 0 && o.occupied_opacity < 1))
+    fail("occupancy: occupied_opacity must be in (0, 1) (is {})", o.occupied_opacity);
+  if (!(o.stop_transmittance > 0 && o.stop_transmittance < 1))
+    fail("occupancy: stop_transmittance must be in (0, 1) (is {})", o.stop_transmittance);
+  if (o.thickness_voxels < 0) fail("occupancy: thickness_voxels must be >= 0");
+  if (o.samples_per_axis < 1 || o.samples_per_axis > 8) fail("occupancy: samples_per_axis must be in [1, 8]");
+  if (o.pixel_stride < 1) fail("occupancy: pixel_stride must be >= 1");
+  if (!(o.prob_hit > 0.5 && o.prob_hit < 1)) fail("occupancy: prob_hit must be in (0.5, 1)");
+  if (!(o.prob_miss > 0 && o.prob_miss < 0.5)) fail("occupancy: prob_miss must be in (0, 0.5)");
+  if (!(o.clamp_min > 0 && o.clamp_min < 0.5 && o.clamp_max > 0.5 && o.clamp_max < 1))
+    fail("occupancy: clamp_min must be in (0, 0.5) and clamp_max in (0.5, 1)");
+  if (!(o.max_memory_mb > 0)) fail("occupancy: max_memory_mb must be > 0");
+  if (o.threads < 1) fail("occupancy: threads must be >= 1");
+}
+
+DensitySource fieldDensitySource(const NerfModel& model, const Sim3& T_out_world) {
+  if (!model.field || !model.grid) fail("occupancy: the model has no field");
+  if (model.training_steps == 0) fail("occupancy: the model was never trained (0 steps): an empty model");
+  // p_nerf = A p_out + b, with A = nerf_scale / s * R^T.
+  const Sim3 T_world_out = T_out_world.inverse();
+  const Eigen::Matrix3d A = model.scene.scale * T_world_out.scale() * T_world_out.rotation().toRotationMatrix();
+  const Eigen::Vector3d b = model.scene.scale * T_world_out.translation() + model.scene.offset;
+  const float sigma_scale = float(model.scene.scale * T_world_out.scale());  // d(nerf length) / d(out length)
+  const Eigen::Matrix3f Af = A.cast<float>();
+  const Eigen::Vector3f bf = b.cast<float>();
+  const Eigen::Vector3f lo = model.scene.aabbMin(), hi = model.scene.aabbMax();
+  DensitySource s;
+  const NerfModel* m = &model;
+  s.density = [m, Af, bf, sigma_scale](const float* xyz, size_t n, float* sigma) {
+    std::vector<float> p(3 * n), q(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+      const Eigen::Vector3f v = Af * Eigen::Vector3f(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]) + bf;
+      p[3 * i] = v.x();
+      p[3 * i + 1] = v.y();
+      p[3 * i + 2] = v.z();
+    }
+    m->toFieldCoords(p.data(), n, q.data());
+    m->field->queryDensity(q.data(), n, sigma);
+    for (size_t i = 0; i < n; ++i) sigma[i] = std::isfinite(sigma[i]) ? sigma[i] * sigma_scale : 0.f;
+  };
+  s.may_be_dense = [m, Af, bf, lo, hi](const Eigen::Vector3f& p_out) {
+    const Eigen::Vector3f p = Af * p_out + bf;
+    if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return false;
+    return m->grid->occupied(p, m->grid->mipFromPos(p));
+  };
+  // The bounds: the occupied cells of cascade 0 (the unit cube the scene is normalised into).
+  const int R = OccupancyGrid::kRes;
+  Eigen::Vector3i cmin = Eigen::Vector3i::Constant(R), cmax = Eigen::Vector3i::Constant(-1);
+  for (int z = 0; z < R; ++z)
+    for (int y = 0; y < R; ++y)
+      for (int x = 0; x < R; ++x)
+        if (model.grid->occupiedCell(0, x, y, z)) {
+          cmin = cmin.cwiseMin(Eigen::Vector3i(x, y, z));
+          cmax = cmax.cwiseMax(Eigen::Vector3i(x, y, z));
+        }
+  if (cmax.x() < 0) fail("occupancy: the model's occupancy grid has no occupied cell: an empty model");
+  const Eigen::Matrix3d Ainv = A.inverse();
+  const float h = OccupancyGrid::cellSize(0);
+  for (int c = 0; c < 8; ++c) {
+    const Eigen::Vector3d corner((c & 1 ? cmax.x() + 1 : cmin.x()) * h, (c & 2 ? cmax.y() + 1 : cmin.y()) * h,
+                                 (c & 4 ? cmax.z() + 1 : cmin.z()) * h);
+    s.bounds.extend(Ainv * (corner - b));
+  }
+  return s;
+}
+
+bool VoxelMap::voxelAt(const Eigen::Vector3d& p, Eigen::Vector3i* v) const {
+  const Eigen::Vector3d g = p / resolution - origin.cast<double>();
+  const Eigen::Vector3i i(int(std::floor(g.x())), int(std::floor(g.y())), int(std::floor(g.z())));
+  if ((i.array() < 0).any() || (i.array() >= dims.array()).any()) return false;
+  *v = i;
+  return true;
+}
+
+uint8_t VoxelMap::stateAt(const Eigen::Vector3d& p) const {
+  Eigen::Vector3i v;
+  if (!voxelAt(p, &v)) return kUnknown;
+  return state[index(v.x(), v.y(), v.z())];
+}
+
+size_t VoxelMap::count(State s) const { return size_t(std::count(state.begin(), state.end(), uint8_t(s))); }
+
+size_t voxelMapBytes(const Eigen::AlignedBox3d& bounds, const VoxelMapOptions& o, Eigen::Vector3i* dims_out,
+                     Eigen::Vector3i* origin_out) {
+  validate(o);
+  if (bounds.isEmpty() || !bounds.min().allFinite() || !bounds.max().allFinite())
+    fail("occupancy: the region to map is empty");
+  const Eigen::Vector3d lo = (bounds.min() / o.resolution).array().floor();
+  const Eigen::Vector3d hi = (bounds.max() / o.resolution).array().ceil();
+  const Eigen::Vector3d n = (hi - lo).cwiseMax(1.0);
+  const double voxels = n.x() * n.y() * n.z();
+  const double bytes = voxels * bytesPerVoxel(o.threads);
+  const double limit = o.max_memory_mb * 1e6;
+  if (!(bytes <= limit) || !(n.maxCoeff() < 65536))
+    fail("occupancy: at resolution {} the map of {:.3g} x {:.3g} x {:.3g} units would have {:.0f} x {:.0f} x {:.0f} = "
+         "{:.3g} voxels and need {:.3g} MB, more than the {} MB allowed (max_memory_mb; at most 65535 voxels a side)",
+         o.resolution, bounds.sizes().x(), bounds.sizes().y(), bounds.sizes().z(), n.x(), n.y(), n.z(), voxels,
+         bytes / 1e6, o.max_memory_mb);
+  if ((lo.array() < -kOctomapKeyOffset).any() || (hi.array() > kOctomapKeyOffset - 1).any())
+    fail("occupancy: at resolution {} the map reaches more than 32768 voxels from the origin (OctoMap's key range)",
+         o.resolution);
+  if (dims_out) *dims_out = n.cast<int>();
+  if (origin_out) *origin_out = lo.cast<int>();
+  return size_t(bytes);
+}
+
+VoxelMapper::VoxelMapper(const VoxelMapOptions& options, const Eigen::AlignedBox3d& bounds) : options_(options) {
+  voxelMapBytes(bounds, options_, &map_.dims, &map_.origin);
+  map_.resolution = options_.resolution;
+  map_.log_odds.assign(map_.size(), 0.f);
+  map_.state.assign(map_.size(), VoxelMap::kUnknown);
+  density_.assign(map_.size(), 0.f);
+}
+
+size_t VoxelMapper::updateDensity(const DensitySource& source, int64_t budget) {
+  if (!source.density) fail("occupancy: the density source has no density function");
+  const size_t total = map_.size();
+  const size_t n = budget < 0 ? total : std::min(total, size_t(budget));
+  if (n == 0) return 0;
+  const int S = options_.samples_per_axis;
+  const int T = options_.threads;
+  const size_t start = budget < 0 ? 0 : cursor_;
+  const VoxelMap& m = map_;
+  parallelRun(T, [&](int t) {
+    const size_t b = n * size_t(t) / size_t(T), e = n * size_t(t + 1) / size_t(T);
+    constexpr size_t kBatch = 2048;
+    std::vector<float> pts, sig;
+    std::vector<size_t> owner;
+    for (size_t c = b; c < e; c += kBatch) {
+      pts.clear();
+      owner.clear();
+      const size_t ce = std::min(e, c + kBatch);
+      for (size_t k = c; k < ce; ++k) {
+        const size_t idx = (start + k) % total;
+        density_[idx] = 0.f;
+        const int x = int(idx % size_t(m.dims.x())), y = int(idx / size_t(m.dims.x()) % size_t(m.dims.y())),
+                  z = int(idx / (size_t(m.dims.x()) * size_t(m.dims.y())));
+        const Eigen::Vector3d lo = m.resolution * (m.origin.cast<double>() + Eigen::Vector3d(x, y, z));
+        for (int kz = 0; kz < S; ++kz)
+          for (int ky = 0; ky < S; ++ky)
+            for (int kx = 0; kx < S; ++kx) {
+              const Eigen::Vector3f p = (lo + m.resolution / S * Eigen::Vector3d(kx + 0.5, ky + 0.5, kz + 0.5)).cast<float>();
+              if (source.may_be_dense && !source.may_be_dense(p)) continue;
+              pts.insert(pts.end(), {p.x(), p.y(), p.z()});
+              owner.push_back(idx);
+            }
+      }
+      if (owner.empty()) continue;
+      sig.resize(owner.size());
+      source.density(pts.data(), owner.size(), sig.data());
+      for (size_t i = 0; i < owner.size(); ++i)
+        if (std::isfinite(sig[i])) density_[owner[i]] = std::max(density_[owner[i]], sig[i]);
+    }
+  });
+  cursor_ = (start + n) % total;
+  return n;
+}
+
+void VoxelMapper::carve(const std::vector<PosedCamera>& views) {
+  const size_t total = map_.size();
+  const int T = options_.threads;
+  const double res = map_.resolution;
+  const float surface_sigma = float(-std::log(1.0 - options_.occupied_opacity) / res);
+  const float stop_tau = float(-std::log(options_.stop_transmittance));
+  const int thick = options_.thickness_voxels;
+  const Eigen::Vector3i dims = map_.dims;
+  std::vector<std::vector<uint32_t>> hits(static_cast<size_t>(T)), misses(static_cast<size_t>(T));
+  parallelRun(T, [&](int t) {
+    auto& H = hits[size_t(t)];
+    auto& M = misses[size_t(t)];
+    H.assign(total, 0);
+    M.assign(total, 0);
+    for (size_t vi = size_t(t); vi < views.size(); vi += size_t(T)) {
+      const PosedCamera& view = views[vi];
+      const Eigen::Matrix3d R = view.T_world_cam.rotation().toRotationMatrix();
+      const Eigen::Vector3d o = view.T_world_cam.translation() / res - map_.origin.cast<double>();  // grid units
+      const int stride = options_.pixel_stride;
+      for (int v = stride / 2; v < view.camera.height; v += stride)
+        for (int u = stride / 2; u < view.camera.width; u += stride) {
+          const Eigen::Vector3d d = (R * view.camera.unproject(Eigen::Vector2d(u, v))).normalized();
+          // Entry into [0, dims]^3.
+          double t0 = 0, t1 = std::numeric_limits<double>::infinity();
+          bool miss = false;
+          for (int a = 0; a < 3; ++a) {
+            if (std::abs(d[a]) < 1e-12) {
+              if (o[a] < 0 || o[a] >= dims[a]) miss = true;
+              continue;
+            }
+            double ta = (0 - o[a]) / d[a], tb = (dims[a] - o[a]) / d[a];
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
+          }
+          if (miss || t0 >= t1) continue;
+          double tc = t0;
+          const Eigen::Vector3d p = o + (t0 + 1e-9) * d;
+          Eigen::Vector3i c;
+          Eigen::Vector3i step;
+          Eigen::Vector3d tmax, tdelta;
+          for (int a = 0; a < 3; ++a) {
+            c[a] = std::clamp(int(std::floor(p[a])), 0, dims[a] - 1);
+            if (d[a] > 0) {
+              step[a] = 1;
+              tmax[a] = (c[a] + 1 - o[a]) / d[a];
+              tdelta[a] = 1 / d[a];
+            } else if (d[a] < 0) {
+              step[a] = -1;
+              tmax[a] = (c[a] - o[a]) / d[a];
+              tdelta[a] = -1 / d[a];
+            } else {
+              step[a] = 0;
+              tmax[a] = tdelta[a] = std::numeric_limits<double>::infinity();
+            }
+          }
+          float tau = 0;
+          int behind = -1;  // voxels still to mark behind the surface; -1: before the surface
+          for (;;) {
+            const size_t idx = size_t(c.x()) + size_t(dims.x()) * (size_t(c.y()) + size_t(dims.y()) * size_t(c.z()));
+            int a = 0;
+            if (tmax[1] < tmax[a]) a = 1;
+            if (tmax[2] < tmax[a]) a = 2;
+            const double tn = tmax[a];
+            if (behind >= 0) {
+              ++H[idx];
+              if (--behind < 0) break;
+            } else {
+              const float sigma = density_[idx];
+              const float seg = float((tn - tc) * res);
+              if (sigma >= surface_sigma || tau + sigma * seg > stop_tau) {
+                ++H[idx];
+                behind = thick;
+                if (--behind < 0) break;
+              } else {
+                ++M[idx];
+                tau += sigma * seg;
+              }
+            }
+            tc = tn;
+            c[a] += step[a];
+            tmax[a] += tdelta[a];
+            if (c[a] < 0 || c[a] >= dims[a]) break;
+          }
+        }
+    }
+  });
+  const float lh = float(logit(options_.prob_hit)), lm = float(logit(options_.prob_miss));
+  const float lmin = float(logit(options_.clamp_min)), lmax = float(logit(options_.clamp_max));
+  for (size_t i = 0; i < total; ++i) {
+    uint64_t h = 0, m = 0;
+    for (int t = 0; t < T; ++t) {
+      h += hits[size_t(t)][i];
+      m += misses[size_t(t)][i];
+    }
+    if (h + m == 0) {
+      map_.log_odds[i] = 0.f;
+      map_.state[i] = VoxelMap::kUnknown;
+      continue;
+    }
+    const float L = std::clamp(float(h) * lh + float(m) * lm, lmin, lmax);
+    map_.log_odds[i] = L;
+    map_.state[i] = L > 0 ? VoxelMap::kOccupied : VoxelMap::kFree;
+  }
+}
+
+Eigen::AlignedBox3d voxelMapBounds(const DensitySource& source, const std::vector<PosedCamera>& views,
+                                   double resolution) {
+  Eigen::AlignedBox3d b = source.bounds;
+  for (const auto& v : views) b.extend(v.T_world_cam.translation());
+  if (b.isEmpty()) fail("occupancy: nothing to map (no density bounds and no views)");
+  b.min() -= Eigen::Vector3d::Constant(resolution);
+  b.max() += Eigen::Vector3d::Constant(resolution);
+  return b;
+}
+
+VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamera>& views,
+                       const VoxelMapOptions& options) {
+  validate(options);
+  VoxelMapper mapper(options, voxelMapBounds(source, views, options.resolution));
+  mapper.updateDensity(source, -1);
+  mapper.carve(views);
+  return mapper.map();
+}
+
+void saveOctomap(const VoxelMap& map, const fs::path& path) {
+  const std::string ext = path.extension().string();
+  if (ext != ".bt" && ext != ".ot") fail("{}: an OctoMap file is .bt (binary) or .ot (full, with log-odds)", path.string());
+  if (map.size() == 0) fail("{}: the map is empty", path.string());
+  octomap::OcTree tree(map.resolution);
+  tree.setClampingThresMin(0.1192);
+  tree.setClampingThresMax(0.971);
+  for (int z = 0; z < map.dims.z(); ++z)
+    for (int y = 0; y < map.dims.y(); ++y)
+      for (int x = 0; x < map.dims.x(); ++x) {
+        const size_t i = map.index(x, y, z);
+        if (map.state[i] == VoxelMap::kUnknown) continue;
+        const octomap::OcTreeKey key(uint16_t(map.origin.x() + x + kOctomapKeyOffset),
+                                     uint16_t(map.origin.y() + y + kOctomapKeyOffset),
+                                     uint16_t(map.origin.z() + z + kOctomapKeyOffset));
+        // An occupied voxel's log-odds is > 0 and a free one's <= 0; OctoMap's threshold is 0 (p 0.5).
+        float L = map.log_odds[i];
+        if (map.state[i] == VoxelMap::kFree && L > -1e-3f) L = -1e-3f;
+        tree.setNodeValue(key, L, true);
+      }
+  tree.updateInnerOccupancy();
+  writeFileAtomic(path, [&](std::ostream& os) {
+    bool ok = false;
+    if (ext == ".bt")
+      ok = tree.writeBinary(os);
+    else
+      ok = tree.write(os);
+    if (!ok) fail("{}: OctoMap could not write the tree", path.string());
+  });
+}
+
+FloorPlane detectFloor(const VoxelMap& map, const std::vector<PosedCamera>& views) {
+  Eigen::Vector3d up = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> centres;
+  for (const auto& v : views) {
+    up -= v.T_world_cam.rotation().toRotationMatrix().col(1);  // image y points down
+    centres.push_back(v.T_world_cam.translation());
+  }
+  up = up.norm() > 1e-9 ? up.normalized() : Eigen::Vector3d::UnitZ();
+  std::vector<Eigen::Vector3d> pts;
+  for (int z = 0; z < map.dims.z(); ++z)
+    for (int y = 0; y < map.dims.y(); ++y)
+      for (int x = 0; x < map.dims.x(); ++x)
+        if (map.state[map.index(x, y, z)] == VoxelMap::kOccupied) pts.push_back(map.center(x, y, z));
+  if (pts.empty()) fail("occupancy: no occupied voxel to find the floor on (give the floor plane)");
+  Eigen::Vector3d n = up;
+  FloorPlane best;
+  const double res = map.resolution;
+  for (int iter = 0; iter < 3; ++iter) {
+    double cam_h = std::numeric_limits<double>::infinity();
+    if (!centres.empty()) {
+      std::vector<double> hs;
+      for (const auto& c : centres) hs.push_back(n.dot(c));
+      std::nth_element(hs.begin(), hs.begin() + long(hs.size() / 2), hs.end());
+      cam_h = hs[hs.size() / 2];
+    }
+    double hmin = std::numeric_limits<double>::infinity();
+    for (const auto& p : pts) hmin = std::min(hmin, n.dot(p));
+    if (!(hmin < cam_h)) fail("occupancy: no occupied voxel below the cameras to find the floor on");
+    const int bins = int(std::min(1e6, std::ceil((std::min(cam_h, hmin + 1e4 * res) - hmin) / res) + 1));
+    std::vector<int> hist(size_t(bins), 0);
+    for (const auto& p : pts) {
+      const double h = n.dot(p);
+      if (h >= cam_h) continue;
+      const int b = int((h - hmin) / res);
+      if (b >= 0 && b < bins) ++hist[size_t(b)];
+    }
+    const int peak = int(std::max_element(hist.begin(), hist.end()) - hist.begin());
+    const double hp = hmin + (peak + 0.5) * res;
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    std::vector<Eigen::Vector3d> in;
+    for (const auto& p : pts)
+      if (std::abs(n.dot(p) - hp) <= 1.5 * res) {
+        in.push_back(p);
+        mean += p;
+      }
+    mean /= double(in.size());
+    Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+    for (const auto& p : in) C += (p - mean) * (p - mean).transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
+    Eigen::Vector3d nn = es.eigenvectors().col(0);
+    if (nn.dot(up) < 0) nn = -nn;
+    // A fit tilted more than 20 degrees from "up" is not a floor (too few points, or a wall): keep up.
+    if (in.size() < 3 || nn.dot(up) < std::cos(20.0 * M_PI / 180.0)) nn = n;
+    n = nn.normalized();
+    best.normal = n;
+    best.offset = -n.dot(mean);
+    best.support = int(in.size());
+  }
+  return best;
+}
+
+GridProjection projectToGrid(const VoxelMap& map, const FloorPlane& floor, double lo, double hi) {
+  if (!(lo < hi) || !std::isfinite(lo) || !std::isfinite(hi))
+    fail("occupancy: the height band must have lo < hi (is {}, {})", lo, hi);
+  if (map.size() == 0) fail("occupancy: the map is empty");
+  const Eigen::Vector3d n = floor.normal.normalized();
+  Eigen::Vector3d ex = Eigen::Vector3d::UnitX() - n.x() * n;
+  if (ex.norm() < 0.3) ex = Eigen::Vector3d::UnitY() - n.y() * n;
+  ex.normalize();
+  const Eigen::Vector3d ey = n.cross(ex);
+  const Eigen::Vector3d p0 = -floor.offset * n;
+  Eigen::Matrix3d R;
+  R << ex, ey, n;
+  GridProjection out;
+  out.T_out_grid = SE3(R, p0);
+  const double res = map.resolution;
+  double xmin = 1e300, xmax = -1e300, ymin = 1e300, ymax = -1e300;
+  for (int c = 0; c < 8; ++c) {
+    const Eigen::Vector3d corner =
+        res * (map.origin.cast<double>() + Eigen::Vector3d(c & 1 ? map.dims.x() : 0, c & 2 ? map.dims.y() : 0,
+                                                           c & 4 ? map.dims.z() : 0));
+    const double gx = ex.dot(corner - p0), gy = ey.dot(corner - p0);
+    xmin = std::min(xmin, gx);
+    xmax = std::max(xmax, gx);
+    ymin = std::min(ymin, gy);
+    ymax = std::max(ymax, gy);
+  }
+  const double cx0 = std::floor(xmin / res), cy0 = std::floor(ymin / res);
+  NavGrid& g = out.grid;
+  g.width = int(std::ceil(xmax / res) - cx0);
+  g.height = int(std::ceil(ymax / res) - cy0);
+  g.resolution = res;
+  g.origin_x = cx0 * res;
+  g.origin_y = cy0 * res;
+  g.origin_yaw = 0;
+  g.cells.assign(size_t(g.width) * size_t(g.height), NavGrid::kUnknown);
+  const int steps = std::max(2, int(std::ceil((hi - lo) / (0.5 * res))) + 1);
+  for (int y = 0; y < g.height; ++y)
+    for (int x = 0; x < g.width; ++x) {
+      const Eigen::Vector3d q = p0 + (g.origin_x + (x + 0.5) * res) * ex + (g.origin_y + (y + 0.5) * res) * ey;
+      bool any_free = false, any_occ = false;
+      for (int k = 0; k < steps && !any_occ; ++k) {
+        const double h = lo + (hi - lo) * k / (steps - 1);
+        const uint8_t s = map.stateAt(q + h * n);
+        any_occ = s == VoxelMap::kOccupied;
+        any_free |= s == VoxelMap::kFree;
+      }
+      g.at(x, y) = any_occ ? NavGrid::kOccupied : any_free ? NavGrid::kFree : NavGrid::kUnknown;
+    }
+  return out;
+}
+
+void saveMapMeta(const MapMeta& m, const fs::path& path) {
+  std::ostringstream s;
+  s << "# nerfslam " << m.kind << " map: how to read the map beside this file\n";
+  s << "kind: " << m.kind << "\n";
+  s << "frame: " << m.frame << "\n";
+  s << fmt::format("resolution: {:.9g}\n", m.resolution);
+  if (m.metres_per_unit > 0) {
+    s << "units: metres\n";
+    s << fmt::format("metres_per_unit: {:.9g}  # the scale the map was made metric with\n", m.metres_per_unit);
+  } else {
+    s << "units: map  # a monocular map without a known scale: lengths are in map units\n";
+    s << "metres_per_unit: null\n";
+  }
+  if (!m.source.empty()) s << "source: \"" << m.source << "\"\n";
+  if (m.voxels) {
+    const VoxelMap& v = *m.voxels;
+    s << fmt::format("voxels: {{dims: [{}, {}, {}], origin_index: [{}, {}, {}], occupied: {}, free: {}, unknown: {}}}\n",
+                     v.dims.x(), v.dims.y(), v.dims.z(), v.origin.x(), v.origin.y(), v.origin.z(),
+                     v.count(VoxelMap::kOccupied), v.count(VoxelMap::kFree), v.count(VoxelMap::kUnknown));
+  }
+  if (m.floor)
+    s << fmt::format("floor: {{normal: [{:.9g}, {:.9g}, {:.9g}], offset: {:.9g}, support_voxels: {}}}  # n.p + offset = 0\n",
+                     m.floor->normal.x(), m.floor->normal.y(), m.floor->normal.z(), m.floor->offset, m.floor->support);
+  if (m.grid) {
+    s << fmt::format("height_band: [{:.9g}, {:.9g}]  # above the floor\n", m.band_lo, m.band_hi);
+    const Eigen::Matrix4d T = m.grid->T_out_grid.matrix();
+    s << "# The grid's frame (map_server's frame) in the map frame, row-major 4x4\nT_map_grid: [";
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) s << fmt::format("{:.9g}{}", T(r, c), r == 3 && c == 3 ? "]\n" : ", ");
+  }
+  writeStringAtomic(path, s.str());
+}
+
+fs::path metaPathFor(const fs::path& map_path) {
+  fs::path p = map_path;
+  p.replace_extension(".meta.yaml");
+  return p;
+}
+
+void writeOctomapFiles(const VoxelMap& map, const fs::path& path, double metres_per_unit, const std::string& source) {
+  saveOctomap(map, path);
+  MapMeta m;
+  m.kind = "octomap";
+  m.resolution = map.resolution;
+  m.metres_per_unit = metres_per_unit;
+  m.source = source;
+  m.voxels = &map;
+  saveMapMeta(m, metaPathFor(path));
+}
+
+GridProjection writeGridFiles(const VoxelMap& map, const std::vector<PosedCamera>& views, const FloorPlane* floor,
+                              double band_lo, double band_hi, const fs::path& yaml_path, double metres_per_unit,
+                              const std::string& source) {
+  if (!(band_lo < band_hi)) fail("occupancy: the height band must have lo < hi (is {}, {})", band_lo, band_hi);
+  const FloorPlane f = floor ? *floor : detectFloor(map, views);
+  GridProjection g = projectToGrid(map, f, band_lo, band_hi);
+  saveMapServer(g.grid, yaml_path);
+  MapMeta m;
+  m.kind = "grid";
+  m.resolution = map.resolution;
+  m.metres_per_unit = metres_per_unit;
+  m.source = source;
+  m.grid = &g;
+  m.floor = &f;
+  m.band_lo = band_lo;
+  m.band_hi = band_hi;
+  saveMapMeta(m, metaPathFor(yaml_path));
+  return g;
+}
+
+}  // namespace nerfslam::nerf
