@@ -24,8 +24,9 @@ double logit(double p) { return std::log(p / (1 - p)); }
 constexpr int kOctomapKeyOffset = 32768;
 
 double bytesPerVoxel(int threads) {
-  // density (float), log-odds (float), state (byte), per-thread hits and misses while carving (2 x u32)
-  return 4.0 + 4.0 + 1.0 + 8.0 * double(std::max(1, threads));
+  // density (float), log-odds (float), state (byte), per-thread hits, misses, last view and views while
+  // carving (4 x u32)
+  return 4.0 + 4.0 + 1.0 + 16.0 * double(std::max(1, threads));
 }
 
 }  // namespace
@@ -40,6 +41,7 @@ void validate(const VoxelMapOptions& o) {
   if (o.thickness_voxels < 0) fail("occupancy: thickness_voxels must be >= 0");
   if (o.samples_per_axis < 1 || o.samples_per_axis > 8) fail("occupancy: samples_per_axis must be in [1, 8]");
   if (o.pixel_stride < 1) fail("occupancy: pixel_stride must be >= 1");
+  if (o.min_hit_views < 1) fail("occupancy: min_hit_views must be >= 1");
   if (!(o.prob_hit > 0.5 && o.prob_hit < 1)) fail("occupancy: prob_hit must be in (0.5, 1)");
   if (!(o.prob_miss > 0 && o.prob_miss < 0.5)) fail("occupancy: prob_miss must be in (0, 0.5)");
   if (!(o.clamp_min > 0 && o.clamp_min < 0.5 && o.clamp_max > 0.5 && o.clamp_max < 1))
@@ -78,23 +80,46 @@ DensitySource fieldDensitySource(const NerfModel& model, const Sim3& T_out_world
     if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return false;
     return m->grid->occupied(p, m->grid->mipFromPos(p));
   };
-  // The bounds: the occupied cells of cascade 0 (the unit cube the scene is normalised into).
+  // The bounds: where the occupied cells of cascade 0 (the unit cube the scene is normalised into) are,
+  // robustly: from the 0.5th to the 99.5th percentile of their coordinates along each axis, widened by
+  // 5 % of that extent, so a few floaters far out do not multiply the map's size.
   const int R = OccupancyGrid::kRes;
-  Eigen::Vector3i cmin = Eigen::Vector3i::Constant(R), cmax = Eigen::Vector3i::Constant(-1);
+  std::vector<int64_t> hist[3];
+  for (auto& h : hist) h.assign(size_t(R), 0);
+  int64_t total = 0;
   for (int z = 0; z < R; ++z)
     for (int y = 0; y < R; ++y)
       for (int x = 0; x < R; ++x)
         if (model.grid->occupiedCell(0, x, y, z)) {
-          cmin = cmin.cwiseMin(Eigen::Vector3i(x, y, z));
-          cmax = cmax.cwiseMax(Eigen::Vector3i(x, y, z));
+          ++hist[0][size_t(x)];
+          ++hist[1][size_t(y)];
+          ++hist[2][size_t(z)];
+          ++total;
         }
-  if (cmax.x() < 0) fail("occupancy: the model's occupancy grid has no occupied cell: an empty model");
+  if (total == 0) fail("occupancy: the model's occupancy grid has no occupied cell: an empty model");
+  Eigen::Vector3d cmin, cmax;
+  for (int a = 0; a < 3; ++a) {
+    int64_t acc = 0;
+    int lo_cell = 0, hi_cell = R - 1;
+    for (int i = 0; i < R; ++i) {
+      acc += hist[a][size_t(i)];
+      if (acc * 200 <= total) lo_cell = i + 1;
+    }
+    acc = 0;
+    for (int i = R - 1; i >= 0; --i) {
+      acc += hist[a][size_t(i)];
+      if (acc * 200 <= total) hi_cell = i - 1;
+    }
+    if (hi_cell < lo_cell) lo_cell = hi_cell = (lo_cell + hi_cell) / 2;
+    const double pad = 0.05 * (hi_cell + 1 - lo_cell);
+    cmin[a] = std::max(0.0, lo_cell - pad);
+    cmax[a] = std::min(double(R), hi_cell + 1 + pad);
+  }
   const Eigen::Matrix3d Ainv = A.inverse();
-  const float h = OccupancyGrid::cellSize(0);
+  const double h = OccupancyGrid::cellSize(0);
   for (int c = 0; c < 8; ++c) {
-    const Eigen::Vector3d corner((c & 1 ? cmax.x() + 1 : cmin.x()) * h, (c & 2 ? cmax.y() + 1 : cmin.y()) * h,
-                                 (c & 4 ? cmax.z() + 1 : cmin.z()) * h);
-    s.bounds.extend(Ainv * (corner - b));
+    const Eigen::Vector3d corner(c & 1 ? cmax.x() : cmin.x(), c & 2 ? cmax.y() : cmin.y(), c & 4 ? cmax.z() : cmin.z());
+    s.bounds.extend(Ainv * (corner * h - b));
   }
   return s;
 }
@@ -199,12 +224,17 @@ void VoxelMapper::carve(const std::vector<PosedCamera>& views) {
   const float stop_tau = float(-std::log(options_.stop_transmittance));
   const int thick = options_.thickness_voxels;
   const Eigen::Vector3i dims = map_.dims;
-  std::vector<std::vector<uint32_t>> hits(static_cast<size_t>(T)), misses(static_cast<size_t>(T));
+  std::vector<std::vector<uint32_t>> hits(static_cast<size_t>(T)), misses(static_cast<size_t>(T)),
+      last_view(static_cast<size_t>(T)), hit_views(static_cast<size_t>(T));
   parallelRun(T, [&](int t) {
     auto& H = hits[size_t(t)];
     auto& M = misses[size_t(t)];
+    auto& LV = last_view[size_t(t)];
+    auto& HV = hit_views[size_t(t)];
     H.assign(total, 0);
     M.assign(total, 0);
+    LV.assign(total, 0);
+    HV.assign(total, 0);
     for (size_t vi = size_t(t); vi < views.size(); vi += size_t(T)) {
       const PosedCamera& view = views[vi];
       const Eigen::Matrix3d R = view.T_world_cam.rotation().toRotationMatrix();
@@ -255,14 +285,22 @@ void VoxelMapper::carve(const std::vector<PosedCamera>& views) {
             if (tmax[1] < tmax[a]) a = 1;
             if (tmax[2] < tmax[a]) a = 2;
             const double tn = tmax[a];
-            if (behind >= 0) {
+            const uint32_t view_tag = uint32_t(vi + 1);
+            auto hit = [&] {
               ++H[idx];
+              if (LV[idx] != view_tag) {
+                LV[idx] = view_tag;
+                ++HV[idx];
+              }
+            };
+            if (behind >= 0) {
+              hit();
               if (--behind < 0) break;
             } else {
               const float sigma = density_[idx];
               const float seg = float((tn - tc) * res);
               if (sigma >= surface_sigma || tau + sigma * seg > stop_tau) {
-                ++H[idx];
+                hit();
                 behind = thick;
                 if (--behind < 0) break;
               } else {
@@ -281,11 +319,14 @@ void VoxelMapper::carve(const std::vector<PosedCamera>& views) {
   const float lh = float(logit(options_.prob_hit)), lm = float(logit(options_.prob_miss));
   const float lmin = float(logit(options_.clamp_min)), lmax = float(logit(options_.clamp_max));
   for (size_t i = 0; i < total; ++i) {
-    uint64_t h = 0, m = 0;
+    uint64_t h = 0, m = 0, hv = 0;
     for (int t = 0; t < T; ++t) {
       h += hits[size_t(t)][i];
       m += misses[size_t(t)][i];
+      hv += hit_views[size_t(t)][i];
     }
+    // A surface seen by fewer views than min_hit_views (a floater explaining one view) is no evidence.
+    if (hv < uint64_t(options_.min_hit_views)) h = 0;
     if (h + m == 0) {
       map_.log_odds[i] = 0.f;
       map_.state[i] = VoxelMap::kUnknown;
@@ -307,10 +348,35 @@ Eigen::AlignedBox3d voxelMapBounds(const DensitySource& source, const std::vecto
   return b;
 }
 
+Eigen::AlignedBox3d observedBounds(const DensitySource& source, const std::vector<PosedCamera>& views,
+                                   const VoxelMapOptions& options) {
+  validate(options);
+  const Eigen::AlignedBox3d all = voxelMapBounds(source, views, options.resolution);
+  if (views.empty()) return all;
+  VoxelMapOptions coarse = options;
+  coarse.resolution = 4 * options.resolution;
+  coarse.samples_per_axis = std::min(8, 2 * options.samples_per_axis);
+  coarse.pixel_stride = std::max(options.pixel_stride, 8);
+  VoxelMapper m(coarse, all);
+  m.updateDensity(source, -1);
+  m.carve(views);
+  const VoxelMap& c = m.map();
+  Eigen::AlignedBox3d seen;
+  for (int z = 0; z < c.dims.z(); ++z)
+    for (int y = 0; y < c.dims.y(); ++y)
+      for (int x = 0; x < c.dims.x(); ++x)
+        if (c.state[c.index(x, y, z)] != VoxelMap::kUnknown) {
+          seen.extend(c.center(x, y, z) - Eigen::Vector3d::Constant(c.resolution));
+          seen.extend(c.center(x, y, z) + Eigen::Vector3d::Constant(c.resolution));
+        }
+  if (seen.isEmpty()) return all;
+  return seen.intersection(all);
+}
+
 VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamera>& views,
                        const VoxelMapOptions& options) {
   validate(options);
-  VoxelMapper mapper(options, voxelMapBounds(source, views, options.resolution));
+  VoxelMapper mapper(options, observedBounds(source, views, options));
   mapper.updateDensity(source, -1);
   mapper.carve(views);
   return mapper.map();
@@ -347,6 +413,59 @@ void saveOctomap(const VoxelMap& map, const fs::path& path) {
   });
 }
 
+namespace {
+
+// "Up" refined by the surfaces' orientations: the local plane normal of each occupied voxel (PCA of
+// the occupied voxels within 2 voxels) summed as n n^T; indoors (walls, floor, furniture: a Manhattan
+// world) one eigenvector of the sum is vertical. The one nearest `up` is taken when it is within 15
+// degrees of it; otherwise `up` is kept.
+Eigen::Vector3d refineUp(const VoxelMap& map, const std::vector<Eigen::Vector3i>& occ, const Eigen::Vector3d& up) {
+  Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+  int planar = 0;
+  for (size_t k = 0; k < occ.size(); k += std::max<size_t>(1, occ.size() / 20000)) {
+    const Eigen::Vector3i& c = occ[k];
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+    int n = 0;
+    for (int dz = -2; dz <= 2; ++dz)
+      for (int dy = -2; dy <= 2; ++dy)
+        for (int dx = -2; dx <= 2; ++dx) {
+          const Eigen::Vector3i q = c + Eigen::Vector3i(dx, dy, dz);
+          if ((q.array() < 0).any() || (q.array() >= map.dims.array()).any()) continue;
+          if (map.state[map.index(q.x(), q.y(), q.z())] != VoxelMap::kOccupied) continue;
+          const Eigen::Vector3d p = q.cast<double>();
+          mean += p;
+          C += p * p.transpose();
+          ++n;
+        }
+    if (n < 8) continue;
+    mean /= n;
+    C = C / n - mean * mean.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
+    const Eigen::Vector3d ev = es.eigenvalues();
+    if (!(ev(0) < 0.2 * ev(1))) continue;  // not planar
+    const Eigen::Vector3d nrm = es.eigenvectors().col(0);
+    M += nrm * nrm.transpose();
+    ++planar;
+  }
+  if (planar < 50) return up;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(M);
+
+  Eigen::Vector3d best = up;
+  double best_dot = std::cos(15.0 * M_PI / 180.0);
+  for (int i = 0; i < 3; ++i) {
+    Eigen::Vector3d e = es.eigenvectors().col(i);
+    if (e.dot(up) < 0) e = -e;
+    if (e.dot(up) > best_dot) {
+      best_dot = e.dot(up);
+      best = e;
+    }
+  }
+  return best.normalized();
+}
+
+}  // namespace
+
 FloorPlane detectFloor(const VoxelMap& map, const std::vector<PosedCamera>& views) {
   Eigen::Vector3d up = Eigen::Vector3d::Zero();
   std::vector<Eigen::Vector3d> centres;
@@ -355,40 +474,54 @@ FloorPlane detectFloor(const VoxelMap& map, const std::vector<PosedCamera>& view
     centres.push_back(v.T_world_cam.translation());
   }
   up = up.norm() > 1e-9 ? up.normalized() : Eigen::Vector3d::UnitZ();
+  std::vector<Eigen::Vector3i> occ;
   std::vector<Eigen::Vector3d> pts;
   for (int z = 0; z < map.dims.z(); ++z)
     for (int y = 0; y < map.dims.y(); ++y)
       for (int x = 0; x < map.dims.x(); ++x)
-        if (map.state[map.index(x, y, z)] == VoxelMap::kOccupied) pts.push_back(map.center(x, y, z));
+        if (map.state[map.index(x, y, z)] == VoxelMap::kOccupied) {
+          occ.emplace_back(x, y, z);
+          pts.push_back(map.center(x, y, z));
+        }
   if (pts.empty()) fail("occupancy: no occupied voxel to find the floor on (give the floor plane)");
-  Eigen::Vector3d n = up;
-  FloorPlane best;
   const double res = map.resolution;
-  for (int iter = 0; iter < 3; ++iter) {
-    double cam_h = std::numeric_limits<double>::infinity();
-    if (!centres.empty()) {
-      std::vector<double> hs;
-      for (const auto& c : centres) hs.push_back(n.dot(c));
-      std::nth_element(hs.begin(), hs.begin() + long(hs.size() / 2), hs.end());
-      cam_h = hs[hs.size() / 2];
-    }
-    double hmin = std::numeric_limits<double>::infinity();
-    for (const auto& p : pts) hmin = std::min(hmin, n.dot(p));
-    if (!(hmin < cam_h)) fail("occupancy: no occupied voxel below the cameras to find the floor on");
-    const int bins = int(std::min(1e6, std::ceil((std::min(cam_h, hmin + 1e4 * res) - hmin) / res) + 1));
-    std::vector<int> hist(size_t(bins), 0);
-    for (const auto& p : pts) {
-      const double h = n.dot(p);
-      if (h >= cam_h) continue;
-      const int b = int((h - hmin) / res);
-      if (b >= 0 && b < bins) ++hist[size_t(b)];
-    }
-    const int peak = int(std::max_element(hist.begin(), hist.end()) - hist.begin());
+  Eigen::Vector3d n = refineUp(map, occ, up);
+  double cam_h = std::numeric_limits<double>::infinity();
+  if (!centres.empty()) {
+    std::vector<double> hs;
+    for (const auto& c : centres) hs.push_back(n.dot(c));
+    std::nth_element(hs.begin(), hs.begin() + long(hs.size() / 2), hs.end());
+    cam_h = hs[hs.size() / 2];
+  }
+  double hmin = std::numeric_limits<double>::infinity();
+  for (const auto& p : pts) hmin = std::min(hmin, n.dot(p));
+  if (!(hmin < cam_h)) fail("occupancy: no occupied voxel below the cameras to find the floor on");
+  // Layers of one voxel along "up", below the cameras.
+  const int bins = int(std::min(1e6, std::ceil((std::min(cam_h, hmin + 1e5 * res) - hmin) / res) + 1));
+  std::vector<int> hist(size_t(bins), 0);
+  for (const auto& p : pts) {
+    const double h = n.dot(p);
+    const int b = int((h - hmin) / res);
+    if (h < cam_h && b >= 0 && b < bins) ++hist[size_t(b)];
+  }
+  std::vector<int> nonzero;
+  for (int c : hist)
+    if (c > 0) nonzero.push_back(c);
+  std::nth_element(nonzero.begin(), nonzero.begin() + long(nonzero.size() / 2), nonzero.end());
+  const int typical = nonzero[nonzero.size() / 2];
+  FloorPlane f;
+  // A floor seen by the cameras: the lowest layer with at least 3x the typical layer's voxels (a floor
+  // covers the area; walls and furniture add a perimeter per layer), refined by a plane fit.
+  int peak = -1;
+  for (int b = 0; b < bins && peak < 0; ++b)
+    if (hist[size_t(b)] >= 3 * typical && hist[size_t(b)] >= 50) peak = b;
+  if (peak >= 0) {
+    while (peak + 1 < bins && hist[size_t(peak + 1)] > hist[size_t(peak)]) ++peak;
     const double hp = hmin + (peak + 0.5) * res;
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     std::vector<Eigen::Vector3d> in;
     for (const auto& p : pts)
-      if (std::abs(n.dot(p) - hp) <= 1.5 * res) {
+      if (std::abs(n.dot(p) - hp) <= 1.0 * res) {
         in.push_back(p);
         mean += p;
       }
@@ -397,15 +530,23 @@ FloorPlane detectFloor(const VoxelMap& map, const std::vector<PosedCamera>& view
     for (const auto& p : in) C += (p - mean) * (p - mean).transpose();
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
     Eigen::Vector3d nn = es.eigenvectors().col(0);
-    if (nn.dot(up) < 0) nn = -nn;
-    // A fit tilted more than 20 degrees from "up" is not a floor (too few points, or a wall): keep up.
-    if (in.size() < 3 || nn.dot(up) < std::cos(20.0 * M_PI / 180.0)) nn = n;
-    n = nn.normalized();
-    best.normal = n;
-    best.offset = -n.dot(mean);
-    best.support = int(in.size());
+    if (nn.dot(n) < 0) nn = -nn;
+    if (nn.dot(n) > std::cos(5.0 * M_PI / 180.0)) n = nn.normalized();
+    f.normal = n;
+    f.offset = -n.dot(mean);
+    f.support = int(in.size());
+    f.method = "plane";
+    return f;
   }
-  return best;
+  // No floor in view (cameras looking out level see little of it): the bottom of the walls and the
+  // furniture standing on it, the lowest layer with at least a third of the typical layer's voxels.
+  int b = 0;
+  while (b + 1 < bins && 3 * hist[size_t(b)] < typical) ++b;
+  f.normal = n;
+  f.offset = -(hmin + b * res);
+  f.support = hist[size_t(b)];
+  f.method = "bottom of the walls";
+  return f;
 }
 
 GridProjection projectToGrid(const VoxelMap& map, const FloorPlane& floor, double lo, double hi) {
@@ -480,8 +621,11 @@ void saveMapMeta(const MapMeta& m, const fs::path& path) {
                      v.count(VoxelMap::kOccupied), v.count(VoxelMap::kFree), v.count(VoxelMap::kUnknown));
   }
   if (m.floor)
-    s << fmt::format("floor: {{normal: [{:.9g}, {:.9g}, {:.9g}], offset: {:.9g}, support_voxels: {}}}  # n.p + offset = 0\n",
-                     m.floor->normal.x(), m.floor->normal.y(), m.floor->normal.z(), m.floor->offset, m.floor->support);
+    s << fmt::format(
+        "floor: {{normal: [{:.9g}, {:.9g}, {:.9g}], offset: {:.9g}, found_by: \"{}\", support_voxels: {}}}  # n.p + "
+        "offset = 0\n",
+        m.floor->normal.x(), m.floor->normal.y(), m.floor->normal.z(), m.floor->offset, m.floor->method,
+        m.floor->support);
   if (m.grid) {
     s << fmt::format("height_band: [{:.9g}, {:.9g}]  # above the floor\n", m.band_lo, m.band_hi);
     const Eigen::Matrix4d T = m.grid->T_out_grid.matrix();

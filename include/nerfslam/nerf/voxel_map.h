@@ -13,6 +13,8 @@
 //      occupied_opacity, and the transmittance so far above stop_transmittance) is a miss (free
 //      space); the voxel where the ray stops is a hit, and so are the thickness_voxels voxels behind
 //      it along the ray (the inside of the surface).
+//      A voxel that rays of fewer than min_hit_views views hit keeps no hits (the NeRF's floaters
+//      explain one view and are seen through, or not seen, from the others).
 //   3. Log-odds, as OctoMap's sensor model: L = hits * logit(prob_hit) + misses * logit(prob_miss),
 //      clamped to [logit(clamp_min), logit(clamp_max)]. Occupied when L > 0, free when L <= 0 with
 //      evidence, unknown without evidence (no ray reached it).
@@ -59,6 +61,7 @@ struct VoxelMapOptions {
   int thickness_voxels = 1;         // voxels behind the surface marked occupied
   int samples_per_axis = 2;         // density samples per voxel along each axis
   int pixel_stride = 8;             // one ray per pixel_stride^2 pixels of each view
+  int min_hit_views = 2;            // hits count only from a voxel hit by rays of this many views
   double prob_hit = 0.7, prob_miss = 0.4, clamp_min = 0.1192, clamp_max = 0.971;  // OctoMap's defaults
   double max_memory_mb = 2048;  // refuse maps larger than this (the error says the size they would have)
   int threads = 2;
@@ -77,6 +80,9 @@ struct VoxelMapOptions {
       check::range(1, 8));
     v("pixel_stride", pixel_stride, "One ray per pixel_stride x pixel_stride pixels of each training view",
       check::range(1, 256));
+    v("min_hit_views", min_hit_views,
+      "A voxel's hits count only when rays of this many views hit it (a floater explains one view)",
+      check::range(1, 1000));
     v("prob_hit", prob_hit, "OctoMap sensor model: occupancy probability of a hit", check::range(0.5, 0.999));
     v("prob_miss", prob_miss, "OctoMap sensor model: occupancy probability of a miss", check::range(0.001, 0.5));
     v("clamp_min", clamp_min, "OctoMap clamping threshold (lower)", check::range(0.001, 0.5));
@@ -139,7 +145,11 @@ class VoxelMapper {
 // The region to map: the source's bounds and the views' centres, padded by one voxel.
 Eigen::AlignedBox3d voxelMapBounds(const DensitySource& source, const std::vector<PosedCamera>& views,
                                    double resolution);
-// Everything at once: bounds, density, carving.
+// The part of voxelMapBounds the views observe: a pass at 4x the resolution (rays and densities), then
+// the box of its voxels with evidence, one coarse voxel wider. Nothing outside it can be known.
+Eigen::AlignedBox3d observedBounds(const DensitySource& source, const std::vector<PosedCamera>& views,
+                                   const VoxelMapOptions& options);
+// Everything at once: observedBounds, density, carving.
 VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamera>& views,
                        const VoxelMapOptions& options);
 
@@ -152,12 +162,16 @@ void saveOctomap(const VoxelMap& map, const std::filesystem::path& path);
 struct FloorPlane {
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
   double offset = 0;
-  int support = 0;  // occupied voxels on it (0 when given)
+  int support = 0;          // occupied voxels on it (0 when given)
+  std::string method = "given";  // "plane", "bottom of the walls" or "given"
   double height(const Eigen::Vector3d& p) const { return normal.dot(p) + offset; }
 };
-// The floor from the map: the largest horizontal layer of occupied voxels below the cameras ("up" from
-// the views' image y axes, the world's z without views), refined by a plane fit. Throws when there are
-// no occupied voxels below the cameras.
+// The floor from the map. "Up" is the views' mean image -y axis (the world's z without views), refined
+// by the surfaces' orientations (one of their principal normal directions, within 15 degrees). The
+// floor is the lowest layer of occupied voxels below the cameras with 3x the voxels of a typical layer,
+// refined by a plane fit ("plane"); when the cameras saw too little of it (looking out level), the
+// lowest layer with a third of a typical layer's voxels, where the walls and furniture stand
+// ("bottom of the walls"). Throws when there is no occupied voxel below the cameras.
 FloorPlane detectFloor(const VoxelMap& map, const std::vector<PosedCamera>& views);
 
 struct GridProjection {
