@@ -27,7 +27,7 @@ struct ExportArgs {
   int threads = 2;
   // --format octomap | grid
   double resolution = 0.05;
-  std::string height_band = "0.1,1.5";
+  std::string height_band;  // empty: 0.05 to 0.9 of the keyframes' median height above the floor
   std::string keyframes, camera, floor;
   double metres_per_unit = 0;
   double max_memory_mb = 2048;
@@ -54,8 +54,11 @@ int runOccupancyExport(const ExportArgs& a, nerf::NerfModel& model) {
     fail("{}: --format octomap writes .bt (binary) or .ot (full, with log-odds)", a.out);
   if (a.format == "grid" && out.extension() != ".yaml")
     fail("{}: --format grid writes the map_server pair NAME.yaml + NAME.pgm: give NAME.yaml", a.out);
-  const auto band = numberList(a.height_band, 2, "--height-band");
-  if (!(band[0] < band[1])) fail("--height-band '{}': lo must be < hi", a.height_band);
+  std::vector<double> band;
+  if (!a.height_band.empty()) {
+    band = numberList(a.height_band, 2, "--height-band");
+    if (!(band[0] < band[1])) fail("--height-band '{}': lo must be < hi", a.height_band);
+  }
   std::optional<nerf::FloorPlane> floor;
   if (!a.floor.empty()) {
     const auto f = numberList(a.floor, 4, "--floor");
@@ -86,8 +89,18 @@ int runOccupancyExport(const ExportArgs& a, nerf::NerfModel& model) {
     nerf::writeOctomapFiles(map, out, a.metres_per_unit, a.model);
     spdlog::info("export: OctoMap -> {} (+ {})", a.out, nerf::metaPathFor(out).string());
   } else {
-    const auto g = nerf::writeGridFiles(map, views, floor ? &*floor : nullptr, band[0], band[1], out,
-                                        a.metres_per_unit, a.model);
+    const nerf::FloorPlane f = floor ? *floor : nerf::detectFloor(map, views);
+    if (band.empty()) {
+      std::vector<double> h;
+      for (const auto& v : views) h.push_back(f.height(v.T_world_cam.translation()));
+      std::nth_element(h.begin(), h.begin() + long(h.size() / 2), h.end());
+      const double cam_h = h[h.size() / 2];
+      if (!(cam_h > 0)) fail("the keyframes are not above the floor found (median height {}): give --floor", cam_h);
+      band = {0.05 * cam_h, 0.9 * cam_h};
+      spdlog::info("export: height band [{:.4g}, {:.4g}] above the floor (0.05 and 0.9 of the keyframes' height)",
+                   band[0], band[1]);
+    }
+    const auto g = nerf::writeGridFiles(map, views, &f, band[0], band[1], out, a.metres_per_unit, a.model);
     size_t occ = 0, fr = 0;
     for (int8_t c : g.grid.cells) {
       occ += c == NavGrid::kOccupied;
@@ -137,7 +150,9 @@ Registrar reg("export",
                 sub.add_option("--resolution", a->resolution,
                                "octomap, grid: voxel/cell side in map units (metres when the map is metric)")
                     ->check(nerfslam::cli::kPositive);
-                sub.add_option("--height-band", a->height_band, "grid: lo,hi above the floor projected to the grid");
+                sub.add_option("--height-band", a->height_band,
+                               "grid: lo,hi above the floor projected to the grid, in map units (default: 0.05 and "
+                               "0.9 of the keyframes' median height above the floor)");
                 sub.add_option("--keyframes", a->keyframes,
                                "octomap, grid: the training views' poses (TUM, e.g. a run's keyframes.txt): their "
                                "rays decide what is free");
