@@ -3,6 +3,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include "command.h"
@@ -42,7 +43,16 @@ nerfslam::SE3 gridFrame(const std::filesystem::path& yaml, std::string* units) {
   } catch (const YAML::Exception& e) {
     fail("{}: not valid YAML ({})", meta.string(), e.what());
   }
-  if (n["units"] && n["units"].as<std::string>() == "map") *units = "map units";
+  if (n["units"] && n["units"].as<std::string>() == "map") {
+    *units = "map units";
+    if (n["metres_per_unit"] && !n["metres_per_unit"].IsNull()) {
+      try {
+        *units = fmt::format("map units (1 = {:.3g} m)", n["metres_per_unit"].as<double>());
+      } catch (const YAML::Exception&) {
+        fail("{}: field 'metres_per_unit' is not a number", meta.string());
+      }
+    }
+  }
   if (!n["T_map_grid"]) return SE3();
   if (!n["T_map_grid"].IsSequence() || n["T_map_grid"].size() != 16)
     fail("{}: field 'T_map_grid' must be 16 numbers (a row-major 4x4 matrix)", meta.string());

@@ -606,9 +606,13 @@ void saveMapMeta(const MapMeta& m, const fs::path& path) {
   s << "kind: " << m.kind << "\n";
   s << "frame: " << m.frame << "\n";
   s << fmt::format("resolution: {:.9g}\n", m.resolution);
-  if (m.metres_per_unit > 0) {
+  if (m.metres_per_unit == 1.0) {
     s << "units: metres\n";
-    s << fmt::format("metres_per_unit: {:.9g}  # the scale the map was made metric with\n", m.metres_per_unit);
+    s << "metres_per_unit: 1\n";
+  } else if (m.metres_per_unit > 0) {
+    s << "units: map  # lengths (resolution, origin, band) are in the map's units; metres = units * metres_per_unit\n";
+    s << fmt::format("metres_per_unit: {:.9g}  # the scale from the ground truth\n", m.metres_per_unit);
+    s << fmt::format("resolution_metres: {:.9g}\n", m.resolution * m.metres_per_unit);
   } else {
     s << "units: map  # a monocular map without a known scale: lengths are in map units\n";
     s << "metres_per_unit: null\n";
