@@ -157,8 +157,9 @@ Registrar reg("export",
                                "octomap, grid: the training views' poses (TUM, e.g. a run's keyframes.txt): their "
                                "rays decide what is free");
                 sub.add_option("--camera", a->camera, "octomap, grid: the camera YAML of the keyframes");
-                sub.add_option("--floor", a->floor, "grid: the floor plane a,b,c,d (a x + b y + c z + d = 0, "
-                                                    "normal up); default: found in the map");
+                sub.add_option("--floor", a->floor,
+                               "grid: the floor plane a,b,c,d (a x + b y + c z + d = 0, "
+                               "normal up); default: found in the map");
                 sub.add_option("--metres-per-unit", a->metres_per_unit,
                                "octomap, grid: the map's scale, written beside it (0: unknown, map units)")
                     ->check(nerfslam::cli::kNonNegative);

@@ -57,8 +57,8 @@ void saveMapServer(const NavGrid& g, const fs::path& yaml_path) {
   if (yaml_path.extension() != ".yaml") fail("{}: a map_server map is written as NAME.yaml", yaml_path.string());
   fs::path pgm = yaml_path;
   pgm.replace_extension(".pgm");
-  std::string img = fmt::format("P5\n# nerfslam occupancy grid, {} per cell\n{} {}\n255\n", g.resolution, g.width,
-                                g.height);
+  std::string img =
+      fmt::format("P5\n# nerfslam occupancy grid, {} per cell\n{} {}\n255\n", g.resolution, g.width, g.height);
   const size_t header = img.size();
   img.resize(header + size_t(g.width) * size_t(g.height));
   for (int y = 0; y < g.height; ++y)
@@ -68,11 +68,11 @@ void saveMapServer(const NavGrid& g, const fs::path& yaml_path) {
       img[header + size_t(g.height - 1 - y) * size_t(g.width) + size_t(x)] = char(v);
     }
   writeStringAtomic(pgm, img);
-  const std::string yaml =
-      fmt::format("image: {}\nresolution: {:.9g}\norigin: [{:.9g}, {:.9g}, {:.9g}]\nnegate: 0\noccupied_thresh: {}\n"
-                  "free_thresh: {}\n",
-                  pgm.filename().string(), g.resolution, g.origin_x, g.origin_y, g.origin_yaw,
-                  kMapServerOccupiedThresh, kMapServerFreeThresh);
+  const std::string yaml = fmt::format(
+      "image: {}\nresolution: {:.9g}\norigin: [{:.9g}, {:.9g}, {:.9g}]\nnegate: 0\noccupied_thresh: {}\n"
+      "free_thresh: {}\n",
+      pgm.filename().string(), g.resolution, g.origin_x, g.origin_y, g.origin_yaw, kMapServerOccupiedThresh,
+      kMapServerFreeThresh);
   writeStringAtomic(yaml_path, yaml);
 }
 
@@ -115,8 +115,8 @@ NavGrid loadMapServer(const fs::path& yaml_path) {
   if (!root["image"]) fail("{}: field 'image' is missing", yaml_path.string());
   fs::path image = root["image"].as<std::string>();
   if (image.is_relative()) image = yaml_path.parent_path() / image;
-  if (image.extension() != ".pgm") fail("{}: field 'image': only PGM images are read ({})", yaml_path.string(),
-                                        image.string());
+  if (image.extension() != ".pgm")
+    fail("{}: field 'image': only PGM images are read ({})", yaml_path.string(), image.string());
   const std::string pgm = readInputFile(image, "map image", uint64_t(kMaxSide) * kMaxSide / 16 + 4096);
   size_t pos = 0;
   if (pgmToken(pgm, pos) != "P5") fail("{}: not a binary PGM (P5)", image.string());

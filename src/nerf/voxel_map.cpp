@@ -5,9 +5,9 @@
 #include <limits>
 #include <sstream>
 
-#include <Eigen/Eigenvalues>
 #include <fmt/format.h>
 #include <octomap/OcTree.h>
+#include <Eigen/Eigenvalues>
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
@@ -152,10 +152,11 @@ size_t voxelMapBytes(const Eigen::AlignedBox3d& bounds, const VoxelMapOptions& o
   const double bytes = voxels * bytesPerVoxel(o.threads);
   const double limit = o.max_memory_mb * 1e6;
   if (!(bytes <= limit) || !(n.maxCoeff() < 65536))
-    fail("occupancy: at resolution {} the map of {:.3g} x {:.3g} x {:.3g} units would have {:.0f} x {:.0f} x {:.0f} = "
-         "{:.3g} voxels and need {:.3g} MB, more than the {} MB allowed (max_memory_mb; at most 65535 voxels a side)",
-         o.resolution, bounds.sizes().x(), bounds.sizes().y(), bounds.sizes().z(), n.x(), n.y(), n.z(), voxels,
-         bytes / 1e6, o.max_memory_mb);
+    fail(
+        "occupancy: at resolution {} the map of {:.3g} x {:.3g} x {:.3g} units would have {:.0f} x {:.0f} x {:.0f} = "
+        "{:.3g} voxels and need {:.3g} MB, more than the {} MB allowed (max_memory_mb; at most 65535 voxels a side)",
+        o.resolution, bounds.sizes().x(), bounds.sizes().y(), bounds.sizes().z(), n.x(), n.y(), n.z(), voxels,
+        bytes / 1e6, o.max_memory_mb);
   if ((lo.array() < -kOctomapKeyOffset).any() || (hi.array() > kOctomapKeyOffset - 1).any())
     fail("occupancy: at resolution {} the map reaches more than 32768 voxels from the origin (OctoMap's key range)",
          o.resolution);
@@ -199,7 +200,8 @@ size_t VoxelMapper::updateDensity(const DensitySource& source, int64_t budget) {
         for (int kz = 0; kz < S; ++kz)
           for (int ky = 0; ky < S; ++ky)
             for (int kx = 0; kx < S; ++kx) {
-              const Eigen::Vector3f p = (lo + m.resolution / S * Eigen::Vector3d(kx + 0.5, ky + 0.5, kz + 0.5)).cast<float>();
+              const Eigen::Vector3f p =
+                  (lo + m.resolution / S * Eigen::Vector3d(kx + 0.5, ky + 0.5, kz + 0.5)).cast<float>();
               if (source.may_be_dense && !source.may_be_dense(p)) continue;
               pts.insert(pts.end(), {p.x(), p.y(), p.z()});
               owner.push_back(idx);
@@ -357,6 +359,13 @@ Eigen::AlignedBox3d observedBounds(const DensitySource& source, const std::vecto
   coarse.resolution = 4 * options.resolution;
   coarse.samples_per_axis = std::min(8, 2 * options.samples_per_axis);
   coarse.pixel_stride = std::max(options.pixel_stride, 8);
+  // A map too large at 4x the resolution is too large at the resolution asked for: say so in its figures.
+  try {
+    voxelMapBytes(all, coarse);
+  } catch (const Error&) {
+    voxelMapBytes(all, options);
+    throw;
+  }
   VoxelMapper m(coarse, all);
   m.updateDensity(source, -1);
   m.carve(views);
@@ -384,7 +393,8 @@ VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamer
 
 void saveOctomap(const VoxelMap& map, const fs::path& path) {
   const std::string ext = path.extension().string();
-  if (ext != ".bt" && ext != ".ot") fail("{}: an OctoMap file is .bt (binary) or .ot (full, with log-odds)", path.string());
+  if (ext != ".bt" && ext != ".ot")
+    fail("{}: an OctoMap file is .bt (binary) or .ot (full, with log-odds)", path.string());
   if (map.size() == 0) fail("{}: the map is empty", path.string());
   octomap::OcTree tree(map.resolution);
   tree.setClampingThresMin(0.1192);
@@ -567,8 +577,8 @@ GridProjection projectToGrid(const VoxelMap& map, const FloorPlane& floor, doubl
   double xmin = 1e300, xmax = -1e300, ymin = 1e300, ymax = -1e300;
   for (int c = 0; c < 8; ++c) {
     const Eigen::Vector3d corner =
-        res * (map.origin.cast<double>() + Eigen::Vector3d(c & 1 ? map.dims.x() : 0, c & 2 ? map.dims.y() : 0,
-                                                           c & 4 ? map.dims.z() : 0));
+        res * (map.origin.cast<double>() +
+               Eigen::Vector3d(c & 1 ? map.dims.x() : 0, c & 2 ? map.dims.y() : 0, c & 4 ? map.dims.z() : 0));
     const double gx = ex.dot(corner - p0), gy = ey.dot(corner - p0);
     xmin = std::min(xmin, gx);
     xmax = std::max(xmax, gx);
@@ -620,9 +630,10 @@ void saveMapMeta(const MapMeta& m, const fs::path& path) {
   if (!m.source.empty()) s << "source: \"" << m.source << "\"\n";
   if (m.voxels) {
     const VoxelMap& v = *m.voxels;
-    s << fmt::format("voxels: {{dims: [{}, {}, {}], origin_index: [{}, {}, {}], occupied: {}, free: {}, unknown: {}}}\n",
-                     v.dims.x(), v.dims.y(), v.dims.z(), v.origin.x(), v.origin.y(), v.origin.z(),
-                     v.count(VoxelMap::kOccupied), v.count(VoxelMap::kFree), v.count(VoxelMap::kUnknown));
+    s << fmt::format(
+        "voxels: {{dims: [{}, {}, {}], origin_index: [{}, {}, {}], occupied: {}, free: {}, unknown: {}}}\n", v.dims.x(),
+        v.dims.y(), v.dims.z(), v.origin.x(), v.origin.y(), v.origin.z(), v.count(VoxelMap::kOccupied),
+        v.count(VoxelMap::kFree), v.count(VoxelMap::kUnknown));
   }
   if (m.floor)
     s << fmt::format(

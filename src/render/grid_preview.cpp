@@ -43,7 +43,8 @@ cv::Mat drawNavGrid(const NavGrid& g, const SE3& T_map_grid, const std::vector<G
       for (const auto& q : pts) cv::circle(img, q, thick + 1, cv::Scalar(t.color[0], t.color[1], t.color[2]), -1);
       continue;
     }
-    if (pts.size() >= 2) cv::polylines(img, pts, false, cv::Scalar(t.color[0], t.color[1], t.color[2]), thick, cv::LINE_AA);
+    if (pts.size() >= 2)
+      cv::polylines(img, pts, false, cv::Scalar(t.color[0], t.color[1], t.color[2]), thick, cv::LINE_AA);
     if (!pts.empty()) cv::circle(img, pts.front(), 2 * thick + 2, cv::Scalar(t.color[0], t.color[1], t.color[2]), -1);
   }
   // Scale bar: 1 unit, or a power of ten that fits.

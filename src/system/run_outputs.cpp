@@ -359,8 +359,13 @@ void writeOccupancyOutputs(const nerf::NerfModel& model, const Camera& cam, cons
       occ += c == NavGrid::kOccupied;
       fr += c == NavGrid::kFree;
     }
-    rep["occupancy"]["grid"] = {{"width", g.grid.width}, {"height", g.grid.height}, {"occupied", occ},
-                                {"free", fr},           {"band", {lo, hi}},        {"floor_support", floor.support}, {"floor_found_by", floor.method}};
+    rep["occupancy"]["grid"] = {{"width", g.grid.width},
+                                {"height", g.grid.height},
+                                {"occupied", occ},
+                                {"free", fr},
+                                {"band", {lo, hi}},
+                                {"floor_support", floor.support},
+                                {"floor_found_by", floor.method}};
     rep["occupancy"]["seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   } catch (const std::exception& e) {
     rep["occupancy_error"] = e.what();

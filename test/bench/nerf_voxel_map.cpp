@@ -318,10 +318,11 @@ int main(int argc, char** argv) {
         t_inc.push_back(seconds(t0));
       }
     }
-    std::printf("map: %d x %d x %d voxels; full extraction %.3f s (median of 3); incremental update %.3f s "
-                "(density of %.1f%% of the voxels %.3f s, then the rays of %zu keyframes)\n",
-                map.dims.x(), map.dims.y(), map.dims.z(), median3(t_full), median3(t_inc), 100 * budget_fraction,
-                median3(t_inc_density), views.size());
+    std::printf(
+        "map: %d x %d x %d voxels; full extraction %.3f s (median of 3); incremental update %.3f s "
+        "(density of %.1f%% of the voxels %.3f s, then the rays of %zu keyframes)\n",
+        map.dims.x(), map.dims.y(), map.dims.z(), median3(t_full), median3(t_inc), 100 * budget_fraction,
+        median3(t_inc_density), views.size());
 
     // Ground truth on the same voxels.
     SynthSceneOptions so;
@@ -400,8 +401,8 @@ int main(int argc, char** argv) {
     std::printf("ground truth: %zu occupied voxels, %zu seen by the keyframes, %zu free along their rays\n",
                 size_t(std::count(gt_occ.begin(), gt_occ.end(), 1)), size_t(std::count(seen.begin(), seen.end(), 1)),
                 size_t(std::count(gt_free.begin(), gt_free.end(), 1)));
-    std::printf("%-22s %10s %10s %12s %12s %10s %12s %10s\n", "3D (tolerance 0 / 1)", "occupied", "precision",
-                "", "recall", "", "free acc.", "free->occ");
+    std::printf("%-22s %10s %10s %12s %12s %10s %12s %10s\n", "3D (tolerance 0 / 1)", "occupied", "precision", "",
+                "recall", "", "free acc.", "free->occ");
     for (const auto& [name, s] : {std::pair<const char*, const Scores&>{"NeRF", ours}, {"sparse points", base}})
       std::printf("%-22s %10zu %10.3f / %.3f %10.3f / %.3f %12.3f %10.4f\n", name, s.occupied, s.precision[0],
                   s.precision[1], s.recall[0], s.recall[1], s.free_accuracy, s.free_wrong);
@@ -432,8 +433,8 @@ int main(int argc, char** argv) {
       for (int x = 0; x < W; ++x) {
         const double px = x0 + (x + 0.5) * res, py = y0 + (y + 0.5) * res;
         // Ground truth: a surface in the band in this column, or outside the room (walls' far side).
-        bool occ_gt = px < scene.bbox_min.x() || px > scene.bbox_max.x() || py < scene.bbox_min.y() ||
-                      py > scene.bbox_max.y();
+        bool occ_gt =
+            px < scene.bbox_min.x() || px > scene.bbox_max.x() || py < scene.bbox_min.y() || py > scene.bbox_max.y();
         for (double h = band[0]; h <= band[1] + 1e-9; h += 0.5 * res) {
           Eigen::Vector3i v;
           if (!g.at({px, py, h}, &v)) continue;
@@ -470,11 +471,11 @@ int main(int argc, char** argv) {
         };
         if ((a && near(gt2)) || (b && near(our2))) ++inter_tol;
       }
-    std::printf("2D grid, band [%.2f, %.2f] m, on the %zu of %d x %d cells the keyframes observe: %zu occupied, %zu "
-                "free, %zu unknown; IoU of the occupied cells %.3f (tolerance 1 cell: %.3f)\n",
-                band[0], band[1], n_observed, W, H, our_occ, our_free, our_unknown,
-                uni ? double(inter) / double(uni) : 0.0,
-                uni ? double(inter_tol) / double(uni) : 0.0);
+    std::printf(
+        "2D grid, band [%.2f, %.2f] m, on the %zu of %d x %d cells the keyframes observe: %zu occupied, %zu "
+        "free, %zu unknown; IoU of the occupied cells %.3f (tolerance 1 cell: %.3f)\n",
+        band[0], band[1], n_observed, W, H, our_occ, our_free, our_unknown, uni ? double(inter) / double(uni) : 0.0,
+        uni ? double(inter_tol) / double(uni) : 0.0);
     if (args.count("--ascii"))
       for (int y = H - 1; y >= 0; y -= 2) {
         for (int x = 0; x < W; ++x) {
@@ -501,8 +502,9 @@ int main(int argc, char** argv) {
                   y0 + (a / W + 0.5) * res, x0 + (b % W + 0.5) * res, y0 + (b / W + 0.5) * res, pg ? "path" : "none",
                   po ? "path" : "none");
     }
-    std::printf("paths: ours has one whenever the ground truth has one in %d of %d pairs (%d with a ground-truth path)\n",
-                agree, pairs, gt_paths);
+    std::printf(
+        "paths: ours has one whenever the ground truth has one in %d of %d pairs (%d with a ground-truth path)\n",
+        agree, pairs, gt_paths);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_nerf_voxel_map: %s\n", e.what());
     return 1;

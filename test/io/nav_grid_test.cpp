@@ -63,10 +63,10 @@ TEST(NavGrid, MapServerPairRoundTripsWithOriginResolutionAndThresholds) {
   EXPECT_EQ(maxval, 255);
   std::string px(35, '\0');
   in.read(px.data(), 35);
-  EXPECT_EQ(static_cast<unsigned char>(px[6]), 0);                 // row 0 = y 4, x 6: occupied
-  EXPECT_EQ(static_cast<unsigned char>(px[4 * 7 + 0]), 0);         // last row = y 0: occupied
-  EXPECT_EQ(static_cast<unsigned char>(px[2 * 7 + 3]), 254);       // y 2: free
-  EXPECT_EQ(static_cast<unsigned char>(px[0]), 205);               // unknown
+  EXPECT_EQ(static_cast<unsigned char>(px[6]), 0);            // row 0 = y 4, x 6: occupied
+  EXPECT_EQ(static_cast<unsigned char>(px[4 * 7 + 0]), 0);    // last row = y 0: occupied
+  EXPECT_EQ(static_cast<unsigned char>(px[2 * 7 + 3]), 254);  // y 2: free
+  EXPECT_EQ(static_cast<unsigned char>(px[0]), 205);          // unknown
   const NavGrid r = loadMapServer(dir / "map.yaml");
   EXPECT_EQ(r.width, g.width);
   EXPECT_EQ(r.height, g.height);
@@ -95,16 +95,19 @@ TEST(NavGrid, BadPairsAreRefusedNamingTheField) {
               "'resolution' must be > 0");
   expectError("image: map.pgm\nresolution: 0.05\norigin: [0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
               "'origin'");
-  expectError("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.1\nfree_thresh: 0.2\n",
-              "free_thresh");
-  expectError("image: nope.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
-              "not found");
+  expectError(
+      "image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.1\nfree_thresh: 0.2\n",
+      "free_thresh");
+  expectError(
+      "image: nope.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+      "not found");
   // A cut-off image.
   std::ifstream pin(dir / "map.pgm", std::ios::binary);
   const std::string pgm((std::istreambuf_iterator<char>(pin)), std::istreambuf_iterator<char>());
   test::writeText(dir / "cut.pgm", pgm.substr(0, pgm.size() - 3));
-  expectError("image: cut.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
-              "truncated");
+  expectError(
+      "image: cut.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+      "truncated");
   // Writing: a bad grid or an unwritable place leaves nothing behind.
   NavGrid empty;
   EXPECT_THROW(saveMapServer(empty, dir / "e.yaml"), Error);

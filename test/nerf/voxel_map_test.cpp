@@ -62,8 +62,8 @@ std::vector<PosedCamera> ringViews() {
   for (int ring = 0; ring < 2; ++ring)
     for (int i = 0; i < 12; ++i) {
       const double a = 2 * M_PI * (i + 0.5 * ring) / 12;
-      const Eigen::Vector3d eye = c + Eigen::Vector3d(1.3 * std::cos(a) + 0.6 * std::cos(a), 1.3 * std::sin(a),
-                                                      ring == 0 ? 0.1 : 0.9);
+      const Eigen::Vector3d eye =
+          c + Eigen::Vector3d(1.3 * std::cos(a) + 0.6 * std::cos(a), 1.3 * std::sin(a), ring == 0 ? 0.1 : 0.9);
       v.push_back({cam, lookAtTarget(eye, c)});
     }
   return v;
@@ -198,7 +198,7 @@ TEST(VoxelMap, GridFromTheBandAboveTheDetectedFloor) {
   };
   EXPECT_EQ(cellAt(-0.45, 0.05), NavGrid::kOccupied);  // the box's sides
   EXPECT_EQ(cellAt(0.45, 0.05), NavGrid::kOccupied);
-  EXPECT_EQ(cellAt(0.05, 0.05), NavGrid::kUnknown);  // inside the box: no ray gets there
+  EXPECT_EQ(cellAt(0.05, 0.05), NavGrid::kUnknown);   // inside the box: no ray gets there
   EXPECT_EQ(cellAt(1.45, 0.35), NavGrid::kOccupied);  // the sphere's side
   EXPECT_EQ(cellAt(-1.0, 0.05), NavGrid::kFree);      // in front of the box
   EXPECT_EQ(cellAt(1.45, 0.65), NavGrid::kFree);      // beside the sphere
@@ -229,10 +229,9 @@ TEST(VoxelMap, BadInputIsRefusedWithoutWritingAnything) {
   o.pixel_stride = 8;
   const VoxelMap m = buildVoxelMap(analyticSource(), ringViews(), o);
   EXPECT_NE(test::errorOf([&] { projectToGrid(m, FloorPlane{}, 0.5, 0.5); }).find("lo < hi"), std::string::npos);
-  EXPECT_NE(test::errorOf([&] {
-              writeGridFiles(m, ringViews(), nullptr, 1.0, 0.2, tmp / "g.yaml", 0, "");
-            }).find("lo < hi"),
-            std::string::npos);
+  EXPECT_NE(
+      test::errorOf([&] { writeGridFiles(m, ringViews(), nullptr, 1.0, 0.2, tmp / "g.yaml", 0, ""); }).find("lo < hi"),
+      std::string::npos);
   EXPECT_FALSE(fs::exists(tmp / "g.pgm"));
   // Unwritable output: an error naming the file, nothing left behind.
   const fs::path missing = tmp / "no_such_dir" / "map.bt";

@@ -144,7 +144,8 @@ TEST(ExportCli, OccupancyBadInputIsRefusedWithoutAFile) {
   EXPECT_TRUE(fs::exists(tmp / "map.meta.yaml"));
   const std::string head = slurp(tmp / "map.bt").substr(0, 40);
   EXPECT_EQ(head.rfind("# Octomap OcTree binary file", 0), 0u) << head;
-  const auto g = run("model.nerf", "--format grid --resolution 0.04 --floor 0,1,0,0.4 --height-band 0.05,0.6 --out " + grid);
+  const auto g =
+      run("model.nerf", "--format grid --resolution 0.04 --floor 0,1,0,0.4 --height-band 0.05,0.6 --out " + grid);
   ASSERT_EQ(g.exit_code, 0) << g.output;
   EXPECT_TRUE(fs::exists(tmp / "map.pgm"));
   EXPECT_NE(slurp(tmp / "map.yaml").find("resolution: 0.04"), std::string::npos);

@@ -103,7 +103,9 @@ struct VoxelMap {
   std::vector<uint8_t> state;
 
   size_t size() const { return size_t(dims.x()) * size_t(dims.y()) * size_t(dims.z()); }
-  size_t index(int x, int y, int z) const { return size_t(x) + size_t(dims.x()) * (size_t(y) + size_t(dims.y()) * size_t(z)); }
+  size_t index(int x, int y, int z) const {
+    return size_t(x) + size_t(dims.x()) * (size_t(y) + size_t(dims.y()) * size_t(z));
+  }
   Eigen::Vector3d center(int x, int y, int z) const {
     return resolution * (origin.cast<double>() + Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5));
   }
@@ -162,7 +164,7 @@ void saveOctomap(const VoxelMap& map, const std::filesystem::path& path);
 struct FloorPlane {
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
   double offset = 0;
-  int support = 0;          // occupied voxels on it (0 when given)
+  int support = 0;               // occupied voxels on it (0 when given)
   std::string method = "given";  // "plane", "bottom of the walls" or "given"
   double height(const Eigen::Vector3d& p) const { return normal.dot(p) + offset; }
 };

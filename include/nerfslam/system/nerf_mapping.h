@@ -61,9 +61,9 @@ inline nerf::TrainOptions nerfMappingTrainDefaults() {
 // occupancy.bt (+ .ot, .meta.yaml) and map.yaml + map.pgm (+ map.meta.yaml).
 struct OccupancyOutputOptions {
   bool enabled = true;
-  double resolution = 0.05;             // metres, when the run knows its scale (ground truth)
-  double relative_resolution = 1 / 160.;  // otherwise: of the mapped region's diagonal
-  double band_lo = 0.1, band_hi = 1.5;  // metres above the floor, when metric
+  double resolution = 0.05;                                // metres, when the run knows its scale (ground truth)
+  double relative_resolution = 1 / 160.;                   // otherwise: of the mapped region's diagonal
+  double band_lo = 0.1, band_hi = 1.5;                     // metres above the floor, when metric
   double relative_band_lo = 0.05, relative_band_hi = 0.9;  // otherwise: of the cameras' height above the floor
   int pixel_stride = 8;
 
