@@ -27,8 +27,8 @@ TEST(GridPreview, CellsAndTrajectoryAreWhereTheGridSays) {
   const int s = 10;  // 200 / 20 pixels per cell
   ASSERT_EQ(img.cols, 20 * s);
   ASSERT_EQ(img.rows, 10 * s);
-  EXPECT_EQ(img.at<cv::Vec3b>(9 * s + 5, 5), cv::Vec3b(0, 0, 0));           // (0, 0) occupied, bottom row
-  EXPECT_EQ(img.at<cv::Vec3b>(5, 19 * s + 5), cv::Vec3b(205, 205, 205));    // (19, 9) unknown, top row
+  EXPECT_EQ(img.at<cv::Vec3b>(9 * s + 5, 5), cv::Vec3b(0, 0, 0));                 // (0, 0) occupied, bottom row
+  EXPECT_EQ(img.at<cv::Vec3b>(5, 19 * s + 5), cv::Vec3b(205, 205, 205));          // (19, 9) unknown, top row
   EXPECT_EQ(img.at<cv::Vec3b>(2 * s + 5, 10 * s + 5), cv::Vec3b(254, 254, 254));  // free
   // The trajectory: red on row 5 (image row 4 from the top, y = 2.5..2.6), not on row 2.
   EXPECT_EQ(img.at<cv::Vec3b>(4 * s + 5, 8 * s + 5), cv::Vec3b(0, 0, 255));
