@@ -425,13 +425,15 @@ void saveOctomap(const VoxelMap& map, const fs::path& path) {
 
 namespace {
 
-// "Up" refined by the surfaces' orientations: the local plane normal of each occupied voxel (PCA of
-// the occupied voxels within 2 voxels) summed as n n^T; indoors (walls, floor, furniture: a Manhattan
-// world) one eigenvector of the sum is vertical. The one nearest `up` is taken when it is within 15
-// degrees of it; otherwise `up` is kept.
+// "Up" refined by the walls: the local plane normal of occupied voxels (PCA of the occupied voxels
+// within 2 voxels) that are within 30 degrees of horizontal are walls and the sides of furniture, and
+// "up" is perpendicular to all of them: the eigenvector of the smallest eigenvalue of their sum of
+// n n^T. Taken when the walls face at least two directions (a clear eigenvalue gap) and it is within
+// 15 degrees of `up`; otherwise `up` is kept.
 Eigen::Vector3d refineUp(const VoxelMap& map, const std::vector<Eigen::Vector3i>& occ, const Eigen::Vector3d& up) {
   Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
-  int planar = 0;
+  int walls = 0;
+  const double max_vertical = std::sin(30.0 * M_PI / 180.0);
   for (size_t k = 0; k < occ.size(); k += std::max<size_t>(1, occ.size() / 20000)) {
     const Eigen::Vector3i& c = occ[k];
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
@@ -455,23 +457,16 @@ Eigen::Vector3d refineUp(const VoxelMap& map, const std::vector<Eigen::Vector3i>
     const Eigen::Vector3d ev = es.eigenvalues();
     if (!(ev(0) < 0.2 * ev(1))) continue;  // not planar
     const Eigen::Vector3d nrm = es.eigenvectors().col(0);
+    if (std::abs(nrm.dot(up)) > max_vertical) continue;  // not a wall
     M += nrm * nrm.transpose();
-    ++planar;
+    ++walls;
   }
-  if (planar < 50) return up;
+  if (walls < 50) return up;
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(M);
-
-  Eigen::Vector3d best = up;
-  double best_dot = std::cos(15.0 * M_PI / 180.0);
-  for (int i = 0; i < 3; ++i) {
-    Eigen::Vector3d e = es.eigenvectors().col(i);
-    if (e.dot(up) < 0) e = -e;
-    if (e.dot(up) > best_dot) {
-      best_dot = e.dot(up);
-      best = e;
-    }
-  }
-  return best.normalized();
+  if (!(es.eigenvalues()(0) < 0.3 * es.eigenvalues()(1))) return up;  // walls facing one way only
+  Eigen::Vector3d e = es.eigenvectors().col(0);
+  if (e.dot(up) < 0) e = -e;
+  return e.dot(up) > std::cos(15.0 * M_PI / 180.0) ? Eigen::Vector3d(e.normalized()) : up;
 }
 
 }  // namespace
