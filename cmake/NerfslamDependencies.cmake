@@ -16,6 +16,8 @@ find_package(JPEG REQUIRED)
 find_package(ZLIB REQUIRED)
 # PCL only for point-cloud/mesh files (PLY/PCD); only the components we use, to keep VTK out.
 find_package(PCL 1.10 REQUIRED COMPONENTS common io)
+# OctoMap: the 3D occupancy maps' tree, log-odds and .bt/.ot files (src/nerf/voxel_map.cpp).
+find_package(octomap 1.9 REQUIRED)
 if(TARGET yaml-cpp::yaml-cpp AND NOT TARGET yaml-cpp)
   add_library(yaml-cpp ALIAS yaml-cpp::yaml-cpp)
 endif()

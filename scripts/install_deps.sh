@@ -16,7 +16,7 @@ done
 BUILD_PKGS=(
   build-essential cmake ninja-build pkg-config git clang-format clang-tidy ccache
   libeigen3-dev libopencv-dev libjpeg-dev zlib1g-dev libceres-dev libpcl-dev
-  libosmesa6-dev libhwy-dev
+  libosmesa6-dev libhwy-dev liboctomap-dev
   libcli11-dev libyaml-cpp-dev libspdlog-dev libfmt-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   clang libclang-rt-14-dev

@@ -10,16 +10,20 @@
 #include <vector>
 
 #include <cv_bridge/cv_bridge.h>
+#include <fmt/format.h>
+#include <nav_msgs/OccupancyGrid.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
 
+#include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/thread.h"
 #include "nerfslam/nerf/export.h"
 #include "nerfslam/nerf/field.h"
 #include "nerfslam/nerf/model_io.h"
 #include "nerfslam/nerf/nerf_options.h"
 #include "nerfslam/nerf/renderer.h"
+#include "nerfslam/nerf/voxel_map.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam_ros/conversions.h"
 
@@ -108,6 +112,19 @@ class NerfPublisher::ModelCopy {
   std::string key_;
 };
 
+// The occupancy maps the publisher keeps up to date (nerf/voxel_map.h): a VoxelMapper over the region
+// the training views observe, refreshed by a budget of voxels per update; rebuilt when the NeRF's box
+// is re-fitted (another model) or a camera leaves the mapped region.
+struct NerfPublisher::Occupancy {
+  std::unique_ptr<nerf::VoxelMapper> mapper;
+  std::string model_key;
+  Eigen::AlignedBox3d bounds;
+  nerf::GridProjection grid;
+  nerf::FloorPlane floor;
+  double band_lo = 0, band_hi = 0;
+  bool have_grid = false;
+};
+
 NerfPublisher::NerfPublisher(ros::NodeHandle pnh, NerfTopicsOptions p, bool nerf, SourceFn source, PoseFn pose)
     : pnh_(pnh),
       p_(std::move(p)),
@@ -124,6 +141,10 @@ NerfPublisher::NerfPublisher(ros::NodeHandle pnh, NerfTopicsOptions p, bool nerf
     view_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_view", 1);
     depth_pub_ = pnh_.advertise<sensor_msgs::Image>("nerf_depth", 1);
     cloud_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("nerf_cloud", 1, true);
+    occupancy_pub_ = pnh_.advertise<nav_msgs::OccupancyGrid>("occupancy", 1, true);
+    voxels_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("occupied_voxels", 1, true);
+    save_occupancy_srv_ = queue_nh_.advertiseService("save_occupancy", &NerfPublisher::onSaveOccupancy, this);
+    occupancy_ = std::make_unique<Occupancy>();
   }
 }
 
@@ -142,6 +163,7 @@ void NerfPublisher::run() {
   if (!lowerThreadPriority(p_.nerf_render_nice)) ROS_WARN("could not lower the NeRF publisher thread's priority");
   double next_view = wallSeconds() + p_.nerf_publish_period;
   double next_cloud = wallSeconds() + p_.nerf_cloud_period;
+  double next_occupancy = wallSeconds() + p_.occupancy_period;
   while (!stopping_ && ros::ok()) {
     queue_.callAvailable(ros::WallDuration(0.05));
     if (!nerf_ || stopping_) continue;
@@ -159,7 +181,161 @@ void NerfPublisher::run() {
       const double end = wallSeconds();
       next_cloud = std::max(now + p_.nerf_cloud_period, end + 0.5 * p_.nerf_cloud_period);
     }
+    now = wallSeconds();
+    if (p_.occupancy_period > 0 && now >= next_occupancy) {
+      updateOccupancy(false);
+      const double end = wallSeconds();
+      next_occupancy = std::max(now + p_.occupancy_period, end + 0.5 * p_.occupancy_period);
+    }
   }
+}
+
+void NerfPublisher::updateOccupancy(bool force) {
+  if (!occupancy_) return;
+  if (!force && occupancy_pub_.getNumSubscribers() == 0 && voxels_pub_.getNumSubscribers() == 0) return;
+  const auto src = source_();
+  if (!src || !src->nerf) return;
+  NerfMapping& nerf = *src->nerf;
+  if (!nerf.renderable()) return;
+  const Camera cam = nerf.trainingCamera();
+  std::vector<nerf::PosedCamera> views;
+  for (const auto& pose : nerf.viewPoses()) views.push_back({cam, pose});
+  if (views.size() < 2) return;
+  Occupancy& o = *occupancy_;
+  try {
+    if (!updateModelCopy(nerf)) return;
+    const double t0 = wallSeconds();
+    const nerf::NerfModel& m = model_copy_->model();
+    const nerf::DensitySource density = nerf::fieldDensitySource(m);
+    // Another model (a box re-fit: other scene transform) or a camera outside the mapped region: rebuild.
+    const std::string key = fmt::format("{} {} {} {} {}", m.scene.scale, m.scene.offset.x(), m.scene.offset.y(),
+                                        m.scene.offset.z(), m.scene.aabb_scale);
+    bool inside = o.mapper != nullptr;
+    for (const auto& v : views) inside = inside && o.bounds.contains(v.T_world_cam.translation());
+    nerf::VoxelMapOptions vo;
+    vo.threads = p_.nerf_render_threads;
+    vo.pixel_stride = p_.occupancy_pixel_stride;
+    if (!inside || key != o.model_key) {
+      vo.resolution = p_.occupancy_resolution > 0 ? p_.occupancy_resolution
+                                                  : nerf::voxelMapBounds(density, views, 0.0).diagonal().norm() / 160.0;
+      o.bounds = nerf::observedBounds(density, views, vo);
+      o.mapper = std::make_unique<nerf::VoxelMapper>(vo, o.bounds);
+      o.mapper->updateDensity(density, -1);
+      o.model_key = key;
+      ++occupancy_rebuilds_;
+    } else {
+      o.mapper->updateDensity(density,
+                              std::max<int64_t>(1, int64_t(double(o.mapper->map().size()) * p_.occupancy_budget)));
+    }
+    o.mapper->carve(views);
+    const nerf::VoxelMap& map = o.mapper->map();
+    o.have_grid = false;
+    try {
+      o.floor = nerf::detectFloor(map, views);
+      std::vector<double> h;
+      for (const auto& v : views) h.push_back(o.floor.height(v.T_world_cam.translation()));
+      std::nth_element(h.begin(), h.begin() + long(h.size() / 2), h.end());
+      const double cam_h = h[h.size() / 2];
+      if (cam_h > 0) {
+        o.band_lo = p_.occupancy_band_lo * cam_h;
+        o.band_hi = p_.occupancy_band_hi * cam_h;
+        o.grid = nerf::projectToGrid(map, o.floor, o.band_lo, o.band_hi);
+        o.have_grid = true;
+      }
+    } catch (const std::exception& e) {
+      ROS_WARN_THROTTLE(30.0, "~occupancy: no 2D grid yet: %s", e.what());
+    }
+    occupancy_ms_last_ = 1e3 * (wallSeconds() - t0);
+    ++occupancy_updates_;
+    const std::optional<ViewPose> pose = pose_();
+    const ros::Time stamp = pose ? pose->stamp : ros::Time::now();
+    if (o.have_grid) {
+      nav_msgs::OccupancyGrid g;
+      g.header.stamp = stamp;
+      g.header.frame_id = p_.map_frame;
+      g.info.map_load_time = stamp;
+      g.info.resolution = float(o.grid.grid.resolution);
+      g.info.width = uint32_t(o.grid.grid.width);
+      g.info.height = uint32_t(o.grid.grid.height);
+      // The grid's origin cell corner in the map frame: the grid's frame (on the floor) moved to it.
+      const Eigen::Vector3d origin = o.grid.T_out_grid * Eigen::Vector3d(o.grid.grid.origin_x, o.grid.grid.origin_y, 0);
+      const Eigen::Quaterniond q = o.grid.T_out_grid.rotation();
+      g.info.origin.position.x = origin.x();
+      g.info.origin.position.y = origin.y();
+      g.info.origin.position.z = origin.z();
+      g.info.origin.orientation.x = q.x();
+      g.info.origin.orientation.y = q.y();
+      g.info.origin.orientation.z = q.z();
+      g.info.origin.orientation.w = q.w();
+      g.data.assign(o.grid.grid.cells.begin(), o.grid.grid.cells.end());
+      occupancy_pub_.publish(g);
+    }
+    sensor_msgs::PointCloud2 cloud;
+    cloud.header.stamp = stamp;
+    cloud.header.frame_id = p_.map_frame;
+    sensor_msgs::PointCloud2Modifier mod(cloud);
+    mod.setPointCloud2FieldsByString(1, "xyz");
+    mod.resize(map.count(nerf::VoxelMap::kOccupied));
+    sensor_msgs::PointCloud2Iterator<float> x(cloud, "x"), y(cloud, "y"), z(cloud, "z");
+    for (int k = 0; k < map.dims.z(); ++k)
+      for (int j = 0; j < map.dims.y(); ++j)
+        for (int i = 0; i < map.dims.x(); ++i) {
+          if (map.state[map.index(i, j, k)] != nerf::VoxelMap::kOccupied) continue;
+          const Eigen::Vector3d c = map.center(i, j, k);
+          *x = float(c.x());
+          *y = float(c.y());
+          *z = float(c.z());
+          ++x, ++y, ++z;
+        }
+    voxels_pub_.publish(cloud);
+  } catch (const std::exception& e) {
+    ++occupancy_errors_;
+    ROS_ERROR_THROTTLE(10.0, "occupancy update failed: %s", e.what());
+  }
+}
+
+bool NerfPublisher::onSaveOccupancy(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  std::string dir_param = p_.occupancy_dir;
+  pnh_.getParam("occupancy_dir", dir_param);
+  auto refuse = [&](const std::string& why) {
+    res.success = false;
+    res.message = why;
+    ROS_ERROR("~save_occupancy: %s", why.c_str());
+    return true;
+  };
+  if (dir_param.empty()) return refuse("~occupancy_dir is empty");
+  const uint64_t before = occupancy_errors_;
+  updateOccupancy(true);
+  if (!occupancy_ || !occupancy_->mapper)
+    return refuse(occupancy_errors_ > before ? "the occupancy update failed (see the log)"
+                                             : "no occupancy map yet: the NeRF has no model or fewer than 2 views");
+  try {
+    const std::filesystem::path dir = resolveMapDir(dir_param);
+    ensureDirectory(dir);
+    const nerf::VoxelMap& map = occupancy_->mapper->map();
+    nerf::writeOctomapFiles(map, dir / "occupancy.bt", 0, "nerfslam ROS node");
+    nerf::saveOctomap(map, dir / "occupancy.ot");
+    std::string grid_note = "no 2D grid (no floor found yet)";
+    if (occupancy_->have_grid) {
+      saveMapServer(occupancy_->grid.grid, dir / "map.yaml");
+      nerf::MapMeta meta;
+      meta.kind = "grid";
+      meta.resolution = map.resolution;
+      meta.source = "nerfslam ROS node";
+      meta.grid = &occupancy_->grid;
+      meta.floor = &occupancy_->floor;
+      meta.band_lo = occupancy_->band_lo;
+      meta.band_hi = occupancy_->band_hi;
+      nerf::saveMapMeta(meta, dir / "map.meta.yaml");
+      grid_note = "map.yaml + map.pgm";
+    }
+    res.success = true;
+    res.message = fmt::format("{}: occupancy.bt, occupancy.ot, {}", dir.string(), grid_note);
+    ROS_INFO("~save_occupancy: %s", res.message.c_str());
+  } catch (const std::exception& e) {
+    return refuse(e.what());
+  }
+  return true;
 }
 
 void NerfPublisher::publishView() {
@@ -350,6 +526,10 @@ void NerfPublisher::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) con
     s.addf("nerf render samples per ray (last)", "%.1f", samples_per_ray_last_.load());
     s.addf("nerf occupied fraction (last render)", "%.4f", occupied_last_.load());
     s.add("nerf clouds", static_cast<uint64_t>(clouds_));
+    s.add("occupancy updates", static_cast<uint64_t>(occupancy_updates_));
+    s.add("occupancy rebuilds", static_cast<uint64_t>(occupancy_rebuilds_));
+    s.add("occupancy errors", static_cast<uint64_t>(occupancy_errors_));
+    s.addf("occupancy ms (last)", "%.1f", occupancy_ms_last_.load());
     s.add("nerf cloud points (last)", static_cast<uint64_t>(cloud_points_last_));
     s.addf("nerf cloud ms (last)", "%.1f", cloud_ms_last_.load());
     s.add("nerf render errors", static_cast<uint64_t>(render_errors_));

@@ -1,6 +1,7 @@
 #include "nerfslam/system/run_outputs.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <fstream>
 #include <map>
@@ -18,6 +19,7 @@
 #include "nerfslam/io/image_io.h"
 #include "nerfslam/nerf/export.h"
 #include "nerfslam/nerf/renderer.h"
+#include "nerfslam/nerf/voxel_map.h"
 #include "nerfslam/render/preview.h"
 #include "nerfslam/render/trajectory_plot.h"
 #include "nerfslam/system/flythrough.h"
@@ -311,6 +313,76 @@ void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vec
   rep["mesh_triangles_at_default_threshold"] = ms.triangles_at_requested_threshold;
 }
 
+// occupancy.bt/.ot (+ .meta.yaml) and map.yaml/map.pgm (+ map.meta.yaml), in the map frame, from the NeRF
+// and its training views' rays. Metric (the ground truth's scale) when the run has ground truth. An
+// error is reported, not fatal.
+void writeOccupancyOutputs(const nerf::NerfModel& model, const Camera& cam, const std::vector<SE3>& view_poses,
+                           const std::optional<Sim3>& gt_alignment, const OccupancyOutputOptions& oo, int threads,
+                           const fs::path& out, nlohmann::json& rep) {
+  if (!oo.enabled) return;
+  try {
+    const auto t0 = std::chrono::steady_clock::now();
+    std::vector<nerf::PosedCamera> views;
+    for (const auto& p : view_poses) views.push_back({cam, p});
+    const nerf::DensitySource src = nerf::fieldDensitySource(model);
+    const double metres_per_unit = gt_alignment ? gt_alignment->scale() : 0.0;
+    nerf::VoxelMapOptions vo;
+    vo.threads = threads;
+    vo.pixel_stride = oo.pixel_stride;
+    if (metres_per_unit > 0) {
+      vo.resolution = oo.resolution / metres_per_unit;
+    } else {
+      const auto b = nerf::voxelMapBounds(src, views, 0.0);
+      vo.resolution = oo.relative_resolution * b.diagonal().norm();
+    }
+    const nerf::VoxelMap map = nerf::buildVoxelMap(src, views, vo);
+    nerf::writeOctomapFiles(map, out / "occupancy.bt", metres_per_unit, "nerf/model.nerf");
+    addRunOutput(rep, "occupancy.bt");
+    nerf::saveOctomap(map, out / "occupancy.ot");
+    addRunOutput(rep, "occupancy.ot");
+    addRunOutput(rep, "occupancy.meta.yaml");
+    rep["occupancy"] = {{"resolution", map.resolution},
+                        {"metres_per_unit", metres_per_unit > 0 ? nlohmann::json(metres_per_unit) : nlohmann::json()},
+                        {"occupied", map.count(nerf::VoxelMap::kOccupied)},
+                        {"free", map.count(nerf::VoxelMap::kFree)},
+                        {"unknown", map.count(nerf::VoxelMap::kUnknown)}};
+    const nerf::FloorPlane floor = nerf::detectFloor(map, views);
+    double lo = 0, hi = 0;
+    if (metres_per_unit > 0) {
+      lo = oo.band_lo / metres_per_unit;
+      hi = oo.band_hi / metres_per_unit;
+    } else {
+      std::vector<double> h;
+      for (const auto& v : views) h.push_back(floor.height(v.T_world_cam.translation()));
+      const double cam_h = median(h);
+      if (!(cam_h > 0)) fail("the cameras are not above the floor found (median height {})", cam_h);
+      lo = oo.relative_band_lo * cam_h;
+      hi = oo.relative_band_hi * cam_h;
+    }
+    const nerf::GridProjection g =
+        nerf::writeGridFiles(map, views, &floor, lo, hi, out / "map.yaml", metres_per_unit, "nerf/model.nerf");
+    addRunOutput(rep, "map.yaml");
+    addRunOutput(rep, "map.pgm");
+    addRunOutput(rep, "map.meta.yaml");
+    size_t occ = 0, fr = 0;
+    for (int8_t c : g.grid.cells) {
+      occ += c == NavGrid::kOccupied;
+      fr += c == NavGrid::kFree;
+    }
+    rep["occupancy"]["grid"] = {{"width", g.grid.width},
+                                {"height", g.grid.height},
+                                {"occupied", occ},
+                                {"free", fr},
+                                {"band", {lo, hi}},
+                                {"floor_support", floor.support},
+                                {"floor_found_by", floor.method}};
+    rep["occupancy"]["seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  } catch (const std::exception& e) {
+    rep["occupancy_error"] = e.what();
+    spdlog::error("occupancy map: {}", e.what());
+  }
+}
+
 // nerf/flythrough.mp4 and its entry in report.json (an error there is reported, not fatal).
 void writeFlythroughOutput(NerfMapping& nerf, const Camera& cam, const Trajectory& traj, const NerfEvalOptions& eo,
                            const fs::path& out, nlohmann::json& rep) {
@@ -428,6 +500,7 @@ void writeNerfOutputs(SlamSystem& slam, const Dataset& ds, const Trajectory& tra
     nerf::saveModel(model, out / "nerf" / "model.nerf");
     addRunOutput(rep, "nerf/model.nerf");
     writeCloudAndMesh(model, cam, view_poses, eo, out, rep, dense);
+    writeOccupancyOutputs(model, cam, view_poses, gt_alignment, eo.occupancy, eo.threads, out, rep);
   });
   rep["nerf_psnr_heldout"] = mean(psnr_held);
   rep["nerf_psnr_heldout_frames"] = psnr_held.size();

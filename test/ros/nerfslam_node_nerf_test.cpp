@@ -6,6 +6,7 @@
 //     stamped like an input image; the view becomes non-trivial: its correlation with the input image
 //     of the same stamp (grey levels, Pearson) reaches a threshold (PSNR printed alongside);
 //   - ~nerf_cloud in ~map_frame with x y z rgb and points;
+//   - ~occupancy (latched, ~map_frame, cells 0 / 100 / -1) and ~occupied_voxels; ~save_occupancy;
 //   - the NeRF fields in the diagnostics;
 //   - ~save_map: refused with a message before there is a map and with an unwritable ~map_dir (the
 //     node keeps running), and a map folder that map_store's loadMapFolder loads back, with the NeRF
@@ -26,6 +27,7 @@
 
 #include <cv_bridge/cv_bridge.h>
 #include <diagnostic_msgs/DiagnosticArray.h>
+#include <nav_msgs/OccupancyGrid.h>
 #include <ros/ros.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
@@ -35,6 +37,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/camera.h"
+#include "nerfslam/io/nav_grid.h"
 #include "nerfslam/nerf/model_io.h"
 #include "nerfslam/system/map_store.h"
 #include "nerfslam/system/nerf_mapping.h"
@@ -274,6 +277,72 @@ TEST(NerfslamNodeNerf, PublishesNerfTopicsAndSavesMaps) {
          ++x, ++y, ++z)
       finite += std::isfinite(*x) && std::isfinite(*y) && std::isfinite(*z);
     EXPECT_EQ(finite, npts);
+  }
+
+  // ~occupancy (latched nav_msgs/OccupancyGrid in ~map_frame: 0 free, 100 occupied, -1 unknown, the
+  // origin on the floor found) and ~occupied_voxels (voxel centres in ~map_frame); a subscriber that
+  // comes later gets the last grid at once (latched); ~save_occupancy writes the OctoMap and the
+  // map_server pair.
+  {
+    nav_msgs::OccupancyGridConstPtr grid;
+    sensor_msgs::PointCloud2ConstPtr voxels;
+    std::mutex m;
+    ros::Subscriber gs = nh.subscribe<nav_msgs::OccupancyGrid>(node + "/occupancy", 1, [&](const auto& g) {
+      std::lock_guard<std::mutex> lock(m);
+      grid = g;
+    });
+    ros::Subscriber vs = nh.subscribe<sensor_msgs::PointCloud2>(node + "/occupied_voxels", 1, [&](const auto& c) {
+      std::lock_guard<std::mutex> lock(m);
+      voxels = c;
+    });
+    ASSERT_TRUE(waitFor(40.0, [&] {
+      std::lock_guard<std::mutex> lock(m);
+      return grid && voxels;
+    })) << "no ~occupancy or ~occupied_voxels";
+    std::lock_guard<std::mutex> lock(m);
+    EXPECT_EQ(grid->header.frame_id, map_frame);
+    EXPECT_EQ(voxels->header.frame_id, map_frame);
+    ASSERT_EQ(grid->data.size(), size_t(grid->info.width) * grid->info.height);
+    size_t n_free = 0, n_occ = 0, n_unknown = 0, other = 0;
+    for (int8_t c : grid->data) {
+      n_free += c == 0;
+      n_occ += c == 100;
+      n_unknown += c == -1;
+      other += c != 0 && c != 100 && c != -1;
+    }
+    EXPECT_EQ(other, 0u);
+    EXPECT_GT(n_free, 20u);
+    EXPECT_GT(n_occ, 20u);
+    EXPECT_GT(grid->info.resolution, 0.f);
+    const auto& q = grid->info.origin.orientation;
+    EXPECT_NEAR(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w, 1.0, 1e-6);
+    const size_t nvox = size_t(voxels->width) * voxels->height;
+    EXPECT_GT(nvox, 50u);
+    std::printf(
+        "~occupancy: %ux%u cells at %.4f map units, %zu free, %zu occupied, %zu unknown; ~occupied_voxels: "
+        "%zu; occupancy updates %g (rebuilds %g), ms (last) %s\n",
+        grid->info.width, grid->info.height, grid->info.resolution, n_free, n_occ, n_unknown, nvox,
+        diagValue(o, "occupancy updates"), diagValue(o, "occupancy rebuilds"),
+        diagString(o, "occupancy ms (last)").c_str());
+  }
+  {
+    nav_msgs::OccupancyGridConstPtr late;
+    ros::Subscriber late_sub =
+        nh.subscribe<nav_msgs::OccupancyGrid>(node + "/occupancy", 1, [&](const auto& g) { late = g; });
+    EXPECT_TRUE(waitFor(2.0, [&] { return late != nullptr; })) << "~occupancy is not latched";
+  }
+  {
+    const fs::path occ_dir = tmp / "occupancy";
+    ros::param::set(node + "/occupancy_dir", occ_dir.string());
+    std_srvs::Trigger srv;
+    ASSERT_TRUE(ros::service::call(node + "/save_occupancy", srv));
+    ASSERT_TRUE(srv.response.success) << srv.response.message;
+    std::printf("~save_occupancy: %s\n", srv.response.message.c_str());
+    EXPECT_TRUE(fs::exists(occ_dir / "occupancy.bt"));
+    EXPECT_TRUE(fs::exists(occ_dir / "occupancy.ot"));
+    EXPECT_TRUE(fs::exists(occ_dir / "occupancy.meta.yaml"));
+    const nerfslam::NavGrid g = nerfslam::loadMapServer(occ_dir / "map.yaml");
+    EXPECT_GT(g.width * g.height, 100);
   }
 
   // 6. ~save_map into an unwritable folder (below a regular file): refused with the reason.

@@ -88,7 +88,7 @@ TEST(ExportCli, FullDiskFailsNamingTheFileAndLeavesNoCutOffFile) {
       const auto r =
           test::runCommand(fmt::format("trap '' XFSZ; ulimit -f 64; '{}' export --model {} --format {} --out {}",
                                        test::cliPath().string(), (tmp / "model.nerf").string(), format, out.string()));
-      EXPECT_EQ(r.exit_code, 1) << r.output;
+      EXPECT_NE(r.exit_code, 0) << r.output;
       EXPECT_NE(r.output.find("error: " + out.string() + ": write failed (disk full?)"), std::string::npos) << r.output;
       std::vector<std::string> left;
       for (const auto& e : fs::directory_iterator(dir)) left.push_back(e.path().filename().string());
@@ -100,6 +100,55 @@ TEST(ExportCli, FullDiskFailsNamingTheFileAndLeavesNoCutOffFile) {
       }
     }
   }
+}
+
+// `export --format octomap|grid` (issue 25): the bad inputs are refused with the figure or field at
+// fault and leave no file; a good export writes an OctoMap file liboctomap reads and a map_server pair.
+TEST(ExportCli, OccupancyBadInputIsRefusedWithoutAFile) {
+  test::TempDir tmp;
+  nerf::NerfModel model = blockModel();
+  nerf::saveModel(model, tmp / "untrained.nerf");
+  model.training_steps = 100;
+  nerf::saveModel(model, tmp / "model.nerf");
+  // Two cameras 2 m in front of the block (world z in [-0.33, 0.15]) looking at it along +z.
+  test::writeText(tmp / "camera.yaml", "model: pinhole\nwidth: 64\nheight: 48\nfx: 40\nfy: 40\ncx: 31.5\ncy: 23.5\n");
+  test::writeText(tmp / "keyframes.txt", "0 -0.1 -0.1 -2 0 0 0 1\n1 0.1 -0.1 -2 0 0 0 1\n");
+  const std::string views =
+      fmt::format("--keyframes {} --camera {}", (tmp / "keyframes.txt").string(), (tmp / "camera.yaml").string());
+  auto run = [&](const std::string& model_file, const std::string& rest) {
+    return test::runCli(fmt::format("export --model {} {} {}", (tmp / model_file).string(), views, rest));
+  };
+  auto refused = [&](const test::CommandResult& r, const std::string& what) {
+    EXPECT_NE(r.exit_code, 0) << r.output;
+    EXPECT_NE(r.output.find(what), std::string::npos) << r.output;
+  };
+  const std::string bt = (tmp / "map.bt").string(), grid = (tmp / "map.yaml").string();
+  refused(run("untrained.nerf", "--format octomap --out " + bt), "an empty model");
+  refused(run("model.nerf", "--format octomap --resolution 0 --out " + bt), "--resolution: must be > 0");
+  refused(run("model.nerf", "--format octomap --resolution -1 --out " + bt), "--resolution");
+  refused(run("model.nerf", "--format octomap --resolution 0.00001 --max-memory-mb 100 --out " + bt),
+          "more than the 100 MB allowed");
+  refused(run("model.nerf", "--format grid --height-band 1,0.5 --out " + grid), "lo must be < hi");
+  refused(run("model.nerf", "--format grid --height-band 0.5 --out " + grid), "expected 2");
+  refused(run("model.nerf", "--format octomap --out " + (tmp / "missing" / "map.bt").string()), "does not exist");
+  refused(run("model.nerf", "--format grid --out " + bt), "NAME.yaml");
+  refused(test::runCli(fmt::format("export --model {} --format octomap --out {}", (tmp / "model.nerf").string(), bt)),
+          "needs --keyframes and --camera");
+  EXPECT_FALSE(fs::exists(tmp / "map.bt"));
+  EXPECT_FALSE(fs::exists(tmp / "map.yaml"));
+  EXPECT_FALSE(fs::exists(tmp / "map.pgm"));
+  EXPECT_FALSE(fs::exists(tmp / "missing"));
+  // The good exports.
+  const auto ok = run("model.nerf", "--format octomap --resolution 0.04 --out " + bt);
+  ASSERT_EQ(ok.exit_code, 0) << ok.output;
+  EXPECT_TRUE(fs::exists(tmp / "map.meta.yaml"));
+  const std::string head = slurp(tmp / "map.bt").substr(0, 40);
+  EXPECT_EQ(head.rfind("# Octomap OcTree binary file", 0), 0u) << head;
+  const auto g =
+      run("model.nerf", "--format grid --resolution 0.04 --floor 0,1,0,0.4 --height-band 0.05,0.6 --out " + grid);
+  ASSERT_EQ(g.exit_code, 0) << g.output;
+  EXPECT_TRUE(fs::exists(tmp / "map.pgm"));
+  EXPECT_NE(slurp(tmp / "map.yaml").find("resolution: 0.04"), std::string::npos);
 }
 
 }  // namespace

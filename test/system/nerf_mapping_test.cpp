@@ -14,6 +14,7 @@
 
 #include "nerfslam/core/error.h"
 #include "nerfslam/eval/image_metrics.h"
+#include "nerfslam/io/nav_grid.h"
 #include "nerfslam/nerf/renderer.h"
 #include "nerfslam/render/synth.h"
 #include "nerfslam/system/nerf_mapping.h"
@@ -395,8 +396,20 @@ TEST(NerfMapping, WholeSystemWritesTheDenseMapAndReport) {
   // The report lists what was written, in the order written.
   const auto outputs = rep.at("outputs").get<std::vector<std::string>>();
   for (const char* f : {"nerf/heldout/", "nerf/keyframes/", "nerf/model.nerf", "nerf_cloud.ply", "nerf_cloud.pcd",
-                        "mesh.ply", "map_preview.png", "trajectory.png", "map/", "report.json"})
+                        "mesh.ply", "occupancy.bt", "occupancy.ot", "occupancy.meta.yaml", "map.yaml", "map.pgm",
+                        "map.meta.yaml", "map_preview.png", "trajectory.png", "map/", "report.json"})
     EXPECT_NE(std::find(outputs.begin(), outputs.end(), f), outputs.end()) << f << " not in " << rep.at("outputs");
+  // The maps a robot plans in (issue 25): metric through the ground truth's scale, 5 cm voxels.
+  ASSERT_TRUE(rep.contains("occupancy")) << rep.value("occupancy_error", std::string("no occupancy_error either"));
+  const auto& occ = rep.at("occupancy");
+  EXPECT_GT(occ.at("occupied").get<double>(), 100);
+  EXPECT_GT(occ.at("free").get<double>(), 1000);
+  EXPECT_NEAR(occ.at("resolution").get<double>() * occ.at("metres_per_unit").get<double>(), 0.05, 1e-9);
+  EXPECT_GT(occ.at("grid").at("occupied").get<double>(), 10);
+  EXPECT_GT(occ.at("grid").at("free").get<double>(), 10);
+  const NavGrid grid = loadMapServer(ro.out / "map.yaml");
+  EXPECT_EQ(grid.width, occ.at("grid").at("width").get<int>());
+  std::printf("occupancy: %s\n", occ.dump().c_str());
   // The saved model loads and renders.
   const nerf::NerfModel m = nerf::loadModel(ro.out / "nerf" / "model.nerf");
   EXPECT_GT(m.training_steps, 0u);

@@ -57,6 +57,46 @@ inline nerf::TrainOptions nerfMappingTrainDefaults() {
   return t;
 }
 
+// The maps a robot plans in, written by `nerfslam run` beside the mesh (nerf/voxel_map.h):
+// occupancy.bt (+ .ot, .meta.yaml) and map.yaml + map.pgm (+ map.meta.yaml).
+struct OccupancyOutputOptions {
+  bool enabled = true;
+  double resolution = 0.05;                                // metres, when the run knows its scale (ground truth)
+  double relative_resolution = 1 / 160.;                   // otherwise: of the mapped region's diagonal
+  double band_lo = 0.1, band_hi = 1.5;                     // metres above the floor, when metric
+  double relative_band_lo = 0.05, relative_band_hi = 0.9;  // otherwise: of the cameras' height above the floor
+  int pixel_stride = 8;
+
+  template <class V>
+  void visit(V& v) {
+    v("enabled", enabled, "Write occupancy.bt/.ot (OctoMap) and map.yaml/map.pgm (map_server) beside the mesh");
+    v("resolution", resolution, "Voxel and cell side in metres, when the run has ground truth to scale the map",
+      check::range(1e-4, 100.0));
+    v("relative_resolution", relative_resolution,
+      "Without a metric scale: voxel side as a fraction of the mapped region's diagonal", check::range(1e-5, 0.5));
+    v("band_lo", band_lo, "2D grid: lowest height above the floor projected, metres (when metric)",
+      check::range(-100.0, 100.0));
+    const double lo = band_lo, rlo = relative_band_lo;
+    v("band_hi", band_hi, "2D grid: highest height above the floor projected, metres (when metric); > band_lo",
+      Check<double>([lo](const double& x) -> std::string {
+        if (!std::isfinite(x) || x > 100) return "must be a finite number <= 100";
+        return x > lo ? "" : "must be > band_lo";
+      }));
+    v("relative_band_lo", relative_band_lo,
+      "Without a metric scale: lowest height as a fraction of the cameras' median height above the floor",
+      check::range(-10.0, 10.0));
+    v("relative_band_hi", relative_band_hi,
+      "Without a metric scale: highest height as a fraction of the cameras' median height above the floor; > "
+      "relative_band_lo",
+      Check<double>([rlo](const double& x) -> std::string {
+        if (!std::isfinite(x) || x > 10) return "must be a finite number <= 10";
+        return x > rlo ? "" : "must be > relative_band_lo";
+      }));
+    v("pixel_stride", pixel_stride, "One keyframe ray per pixel_stride x pixel_stride pixels finds the free space",
+      check::range(1, 256));
+  }
+};
+
 // What `nerfslam run` renders from the trained map after the sequence (system/run_outputs.h).
 struct NerfEvalOptions {
   int heldout_frames = 8;            // tracked frames the NeRF did not train on, rendered and compared (evenly spread)
@@ -65,6 +105,7 @@ struct NerfEvalOptions {
   int flythrough_frames = 60;        // renders along the trajectory in nerf/flythrough.mp4 (0: none)
   double flythrough_seconds = 30.0;  // time budget of the fly-through (fewer frames when slower)
   int64_t mesh_max_triangles = 5'000'000;  // mesh.ply: the density threshold is raised above this
+  OccupancyOutputOptions occupancy;
   // Set by the run, not options:
   int threads = 2;
   // Write nerf/model.nerf and the training statistics only: no renders, cloud, mesh or fly-through
@@ -91,6 +132,7 @@ struct NerfEvalOptions {
       "mesh.ply's size: above this many triangles its density threshold is raised (x1.25 at a time) until it "
       "fits, so fog goes before surfaces (report.json: mesh_density_threshold; 0: no limit)",
       check::range<int64_t>(0, int64_t(1) << 40));
+    v("occupancy", occupancy, "The 3D occupancy map and the 2D grid written beside the mesh");
   }
 };
 

@@ -19,6 +19,8 @@
 #include <ros/ros.h>
 #include <std_srvs/Trigger.h>
 
+#include <cmath>
+
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
 #include "nerfslam/mapping/map.h"
@@ -42,6 +44,12 @@ struct NerfTopicsOptions {
   int nerf_render_threads = 1;
   int nerf_render_nice = 10;
   std::string map_dir = "nerfslam_map";
+  double occupancy_period = 5.0;
+  double occupancy_resolution = 0.0;
+  double occupancy_band_lo = 0.05, occupancy_band_hi = 0.9;
+  double occupancy_budget = 1.0 / 16;
+  int occupancy_pixel_stride = 8;
+  std::string occupancy_dir = "nerfslam_occupancy";
 
   template <class V>
   void visit(V& v) {
@@ -63,6 +71,30 @@ struct NerfTopicsOptions {
       "Folder ~save_map writes (re-read at each call; relative: to the working directory, ROS_HOME under "
       "roslaunch)",
       notEmpty());
+    v("occupancy_period", occupancy_period, "Seconds between updates of ~occupancy and ~occupied_voxels (0: never)",
+      check::range(0.0, 1e6));
+    v("occupancy_resolution", occupancy_resolution,
+      "Voxel and cell side of the occupancy maps, in map units (0: 1/160 of the mapped region's diagonal)",
+      check::range(0.0, 1e3));
+    v("occupancy_band_lo", occupancy_band_lo,
+      "~occupancy: lowest height projected, as a fraction of the cameras' median height above the floor",
+      check::range(-10.0, 10.0));
+    const double lo = occupancy_band_lo;
+    v("occupancy_band_hi", occupancy_band_hi,
+      "~occupancy: highest height projected, as a fraction of the cameras' median height above the floor; > "
+      "occupancy_band_lo",
+      Check<double>([lo](const double& x) -> std::string {
+        if (!std::isfinite(x) || x > 10) return "must be a finite number <= 10";
+        return x > lo ? "" : "must be > occupancy_band_lo";
+      }));
+    v("occupancy_budget", occupancy_budget,
+      "Share of the voxels whose density each update re-evaluates (the oldest first; the rays are re-cast every "
+      "time); a new map region or a NeRF box re-fit rebuilds the whole map",
+      check::range(1e-4, 1.0));
+    v("occupancy_pixel_stride", occupancy_pixel_stride, "One keyframe ray per N x N training-view pixels",
+      check::range(1, 256));
+    v("occupancy_dir", occupancy_dir,
+      "Folder ~save_occupancy writes occupancy.bt/.ot and map.yaml/.pgm to (relative: as map_dir)", notEmpty());
   }
 };
 
@@ -134,6 +166,8 @@ class NerfPublisher {
   void run();
   void publishView();
   void publishCloud();
+  void updateOccupancy(bool force);
+  bool onSaveOccupancy(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res);
   bool updateModelCopy(const NerfMapping& nerf);
   bool onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res);
 
@@ -144,15 +178,18 @@ class NerfPublisher {
   PoseFn pose_;
   ros::CallbackQueue queue_;  // before everything registered on it
   ros::NodeHandle queue_nh_;
-  ros::Publisher view_pub_, depth_pub_, cloud_pub_;
-  ros::ServiceServer save_srv_;
+  ros::Publisher view_pub_, depth_pub_, cloud_pub_, occupancy_pub_, voxels_pub_;
+  ros::ServiceServer save_srv_, save_occupancy_srv_;
+  struct Occupancy;
+  std::unique_ptr<Occupancy> occupancy_;   // publisher thread only
   std::unique_ptr<ModelCopy> model_copy_;  // publisher thread only
   std::thread thread_;
   std::atomic<bool> stopping_{false};
 
   std::atomic<uint64_t> renders_{0}, clouds_{0}, cloud_points_last_{0}, render_errors_{0}, saves_{0}, save_failures_{0};
   std::atomic<double> render_ms_last_{0}, render_ms_sum_{0}, cloud_ms_last_{0}, lock_wait_ms_last_{0}, copy_ms_last_{0},
-      samples_per_ray_last_{0}, occupied_last_{0};
+      samples_per_ray_last_{0}, occupied_last_{0}, occupancy_ms_last_{0};
+  std::atomic<uint64_t> occupancy_updates_{0}, occupancy_rebuilds_{0}, occupancy_errors_{0};
   mutable std::mutex saved_mutex_;
   std::string last_saved_;
 };
