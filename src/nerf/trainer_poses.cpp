@@ -55,12 +55,13 @@ void Trainer::stepPoses(const std::vector<double>& grad, const std::vector<int>&
     pose_opt_.step(v, pose_corr_[v], g, opt_.pose_lr, scene_unit, opt_.pose_reg);
     const double dist = (views_[v].T_world_cam.translation() - centre).norm();
     const double max_t = opt_.pose_max_translation * std::max(dist, scene_unit);
-    if (!pose_corr_[v].finite() || pose_corr_[v].rotation.norm() > max_rot || pose_corr_[v].translation.norm() > max_t) {
+    if (!pose_corr_[v].finite() || pose_corr_[v].rotation.norm() > max_rot ||
+        pose_corr_[v].translation.norm() > max_t) {
       if (pose_resets_ < 3 || pose_resets_ % 100 == 0)  // the first, then every 100th (poseRefinementStats counts)
-        spdlog::warn("NeRF pose refinement: view {} diverged at step {} (rotation {:.2f} deg, translation {:.3g}); reset "
-                     "({} resets so far)",
-                     v, step_, pose_corr_[v].rotation.norm() * 180.0 / M_PI, pose_corr_[v].translation.norm(),
-                     pose_resets_ + 1);
+        spdlog::warn(
+            "NeRF pose refinement: view {} diverged at step {} (rotation {:.2f} deg, translation {:.3g}); reset "
+            "({} resets so far)",
+            v, step_, pose_corr_[v].rotation.norm() * 180.0 / M_PI, pose_corr_[v].translation.norm(), pose_resets_ + 1);
       pose_corr_[v] = PoseCorrection{};
       pose_opt_.reset(v);
       ++pose_resets_;

@@ -38,7 +38,8 @@ TEST(PoseRefine, FieldPositionGradientMatchesFiniteDifferences) {
   auto loss = [&](size_t i, const float* p) {
     float sigma, rgb[3];
     field.query(p, dir.data() + 3 * i, 1, &sigma, rgb);
-    return double(a[i]) * sigma + double(b[3 * i]) * rgb[0] + double(b[3 * i + 1]) * rgb[1] + double(b[3 * i + 2]) * rgb[2];
+    return double(a[i]) * sigma + double(b[3 * i]) * rgb[0] + double(b[3 * i + 1]) * rgb[1] +
+           double(b[3 * i + 2]) * rgb[2];
   };
   auto ws = field.makeWorkspace();
   auto grads = field.makeGradients();
@@ -142,10 +143,9 @@ TEST(PoseRefine, PerturbedViewConvergesBackOnTheSphere) {
   views[bad].T_world_cam = perturb.apply(truth);
   for (int i = 0; i < 20; ++i)  // surface points for the shift statistics: the sphere's front
     for (int k = 0; k < 30; ++k) {
-      const Eigen::Vector3d dir =
-          (views[size_t(i)].T_world_cam.translation().normalized() +
-           0.4 * Eigen::Vector3d(std::sin(k * 1.3), std::cos(k * 2.1), std::sin(k * 0.7)))
-              .normalized();
+      const Eigen::Vector3d dir = (views[size_t(i)].T_world_cam.translation().normalized() +
+                                   0.4 * Eigen::Vector3d(std::sin(k * 1.3), std::cos(k * 2.1), std::sin(k * 0.7)))
+                                      .normalized();
       views[size_t(i)].points.push_back({(kSphereRadius * dir).cast<float>(), 1.f});
     }
   NerfModel model = NerfModel::create(sphereField(), sphereScene(), 1);
@@ -167,7 +167,8 @@ TEST(PoseRefine, PerturbedViewConvergesBackOnTheSphere) {
   for (size_t v = 0; v < views.size(); ++v) {
     if (v == bad) continue;
     others_rot = std::max(others_rot, rotationErrorDeg(trainer.refinedViewPose(v), views[v].T_world_cam));
-    others_t = std::max(others_t, (trainer.refinedViewPose(v).translation() - views[v].T_world_cam.translation()).norm());
+    others_t =
+        std::max(others_t, (trainer.refinedViewPose(v).translation() - views[v].T_world_cam.translation()).norm());
   }
   const auto st = trainer.poseRefinementStats();
   std::printf(
