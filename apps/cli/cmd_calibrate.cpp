@@ -9,6 +9,7 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/input_file.h"
+#include "nerfslam/io/image_io.h"
 
 namespace {
 
@@ -42,7 +43,9 @@ nerfslam::cli::Registrar reg(
           for (const auto& photo : listImageFiles(a->images))
             if (sameFile(a->out, photo))
               fail("calibrate: --out {} is one of the photos in --images; choose another output file", a->out);
-        const CalibrationResult r = calibrateFromImages(a->images, board, model);
+        // readImage refuses truncated and corrupt PNG/JPEG photos (OpenCV would decode them in part).
+        const CalibrationResult r = calibrateFromImages(
+            a->images, board, model, [](const std::filesystem::path& p) { return readImage(p, ImageMode::kGray); });
         for (const auto& im : r.images) {
           if (im.board_found)
             fmt::print("{:<32} RMS {:.4f} px\n", im.path.filename().string(), im.rms);

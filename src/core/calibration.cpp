@@ -95,7 +95,8 @@ double viewRms(const Camera& cam, const std::vector<cv::Point3f>& obj, const std
 
 }  // namespace
 
-CalibrationResult calibrateFromImages(const fs::path& image_dir, const ChessboardSpec& board, DistortionModel model) {
+CalibrationResult calibrateFromImages(const fs::path& image_dir, const ChessboardSpec& board, DistortionModel model,
+                                      const CalibrationImageLoader& load) {
   if (board.cols < 2 || board.rows < 2 || !(board.square > 0))
     fail("calibrate: invalid board {}x{} with {} m squares", board.cols, board.rows, board.square);
   if (model == DistortionModel::kNone) fail("calibrate: the distortion model must be radtan or equidistant");
@@ -116,10 +117,19 @@ CalibrationResult calibrateFromImages(const fs::path& image_dir, const Chessboar
   for (const auto& f : files) {
     CalibrationImage ci;
     ci.path = f;
-    const cv::Mat gray = cv::imread(f.string(), cv::IMREAD_GRAYSCALE);
-    if (gray.empty()) {
-      ci.problem = "could not be read as an image";
-      spdlog::warn("{}: {}", f.string(), ci.problem);
+    cv::Mat gray;
+    try {
+      gray = load ? load(f) : cv::imread(f.string(), cv::IMREAD_GRAYSCALE);
+      if (gray.empty()) ci.problem = "could not be read as an image";
+    } catch (const std::exception& e) {
+      ci.problem = e.what();
+    }
+    if (!ci.problem.empty()) {
+      // A loader's error names the file itself.
+      if (ci.problem.rfind(f.string(), 0) == 0)
+        spdlog::warn("{}", ci.problem);
+      else
+        spdlog::warn("{}: {}", f.string(), ci.problem);
       result.images.push_back(ci);
       continue;
     }

@@ -20,6 +20,7 @@
 
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/io/image_io.h"
 
 namespace nerfslam {
 namespace fs = std::filesystem;
@@ -377,10 +378,8 @@ SynthResult writeSynthSequence(const SynthOptions& opts, const fs::path& out,
         cv_push.notify_one();
         const std::string s = stampName(stamps[job.index]);
         for (int k = 0; k < 2; ++k) {
-          AtomicOutput o(out / (k == 0 ? "rgb" : "depth") / (s + ".png"));
-          if (!cv::imwrite(o.tempPath().string(), k == 0 ? job.bgr : job.depth16))
-            fail("could not write '{}'", o.path().string());
-          o.commit();
+          // Every write checked, atomic: a full disk is an Error naming the frame, never a cut-off PNG.
+          writeImageAtomic(out / (k == 0 ? "rgb" : "depth") / (s + ".png"), k == 0 ? job.bgr : job.depth16);
         }
         int prefix;
         {

@@ -467,6 +467,7 @@ void writeRunFiles(SlamSystem& slam, const Dataset& ds, const Trajectory& traj, 
       writeNerfOutputs(slam, ds, traj, ge.alignment, out, eo, rep, &dense);
     } catch (const std::exception& e) {
       rep["nerf_error"] = e.what();
+      rep["nerf_outputs_failed"] = true;  // a write that failed: the run's exit status is 1
       spdlog::error("NeRF outputs: {}", e.what());
     }
   }
@@ -625,7 +626,8 @@ RunResult runSlam(const RunOptions& ro) {
   RunResult res;
   res.report = rep;
   res.initialized = slam.initialized();
-  const bool failed = !pipe.read_failure.empty() || !pipe.tracking_failure.empty() || map_save_failed;
+  const bool failed = !pipe.read_failure.empty() || !pipe.tracking_failure.empty() || map_save_failed ||
+                      rep.value("nerf_outputs_failed", false);
   res.exit_code = failed ? 1 : interrupted ? interruptedExitCode() : 0;
   return res;
 }

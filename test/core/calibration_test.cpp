@@ -122,6 +122,31 @@ TEST(Calibration, CliEndToEnd) {
   EXPECT_EQ(cam.cy, lib.camera.cy);
   EXPECT_EQ(cam.distortion, lib.camera.distortion);
 
+  // A photo cut short (half its bytes, then the JPEG end marker: OpenCV decodes it in part, with only
+  // libjpeg's warning) is named, left out, and the calibration goes on with the others.
+  const fs::path copy = out / "photos";
+  fs::create_directories(copy);
+  for (const auto& e : fs::directory_iterator(dir)) fs::copy_file(e.path(), copy / e.path().filename());
+  {
+    std::ifstream in(copy / "left02.jpg", std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    bytes.resize(bytes.size() / 2);
+    bytes += "\xff\xd9";
+    std::ofstream(copy / "left02.jpg", std::ios::binary | std::ios::trunc) << bytes;
+  }
+  const auto cut = test::runCli("calibrate --images '" + copy.string() + "' --board 9x6 --square 0.025 --out '" +
+                                (out / "cut.yaml").string() + "'");
+  ASSERT_EQ(cut.exit_code, 0) << cut.output;
+  EXPECT_NE(cut.output.find("left02.jpg: corrupt JPEG"), std::string::npos) << cut.output;
+  EXPECT_TRUE(fs::exists(out / "cut.yaml"));
+  const CalibrationResult with_cut =
+      calibrateFromImages(copy, parseBoardSize("9x6", 0.025), DistortionModel::kRadTan, [](const fs::path& p) {
+        if (p.filename() == "left02.jpg") fail("{}: corrupt", p.string());
+        return cv::imread(p.string(), cv::IMREAD_GRAYSCALE);
+      });
+  EXPECT_EQ(with_cut.images_used, lib.images_used - 1);
+  EXPECT_EQ(with_cut.images[1].problem, (copy / "left02.jpg").string() + ": corrupt");
+
   // Bad input: clear message, exit code 1, nothing written.
   const auto bad = test::runCli("calibrate --images '" + dir.string() + "' --board 9by6 --square 0.025 --out '" +
                                 (out / "bad.yaml").string() + "'");

@@ -13,6 +13,7 @@
 
 #include "nerfslam/core/error.h"
 #include "nerfslam/io/dataset.h"
+#include "nerfslam/io/image_io.h"
 #include "nerfslam/render/synth.h"
 #include "test_support.h"
 
@@ -391,6 +392,31 @@ TEST(SynthCli, KilledHalfWayNeverIndexesFramesNotWritten) {
   }
   // At least one kill landed after an index was written, so the check above saw real index files.
   EXPECT_GT(partial_runs, 0u);
+}
+
+// A full disk (a file-size limit below a frame's PNG, `ulimit -f 64` in /bin/sh's 512-byte blocks,
+// SIGXFSZ ignored: a write past it fails with EFBIG as a full disk fails with ENOSPC): synth stops
+// with an error naming the frame it could not write, exit 1, and leaves no temporary or cut-off PNG
+// (each is written to a temporary file and renamed when complete).
+TEST(SynthCli, FullDiskFailsNamingTheFrameAndLeavesNoCutOffPng) {
+  if (!fs::exists(test::cliPath())) GTEST_SKIP() << "nerfslam binary not built";
+  test::TempDir tmp;
+  const fs::path out = tmp / "seq";
+  const auto r = test::runCommand("trap '' XFSZ; ulimit -f 64; '" + test::cliPath().string() +
+                                  "' synth --scene room --frames 40 --size 320x240 --textures procedural --out '" +
+                                  out.string() + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find(".png: write failed (disk full?)"), std::string::npos) << r.output;
+  size_t pngs = 0;
+  for (const char* sub : {"rgb", "depth"}) {
+    if (!fs::exists(out / sub)) continue;
+    for (const auto& e : fs::directory_iterator(out / sub)) {
+      EXPECT_EQ(e.path().extension(), ".png") << e.path() << ": a temporary file was left";
+      EXPECT_NO_THROW(readImage(e.path(), ImageMode::kUnchanged)) << e.path();
+      ++pngs;
+    }
+  }
+  std::printf("full disk: %zu complete PNGs left\n", pngs);
 }
 
 TEST(SynthCli, WritesASequenceAndRejectsBadInput) {

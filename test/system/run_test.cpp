@@ -221,6 +221,22 @@ TEST(RunSystem, NerfRunLeavesASurfacePreviewAFlythroughAndATrajectoryPlot) {
   // carves free space (fog in front of the surfaces no longer counts as surface).
   EXPECT_GT(dense_px, int(dense_img.total() / 40)) << "the surface covers a fortieth of the picture at least";
   EXPECT_GT(dense_px, 2 * sparse_px) << dense_px << " pixels against " << sparse_px;
+  // NeRF outputs that cannot be written (a file where the nerf/ folder goes): everything else is
+  // written, report.json says what failed, and the exit status says so too.
+  const auto blocked = dir / "blocked_run";
+  std::filesystem::create_directories(blocked);
+  test::writeText(blocked / "nerf", "a file where the folder goes\n");
+  test::writeText(dir / "no_final.yaml",
+                  "nerf:\n  downscale: 2.0\n  final_train_seconds: 0\n"
+                  "  outputs: {flythrough_frames: 0, heldout_frames: 1, keyframe_frames: 0}\n");
+  const auto b = test::runCli("run --dataset " + seq.string() + " --config " + (dir / "no_final.yaml").string() +
+                              " --out " + blocked.string());
+  EXPECT_EQ(b.exit_code, 1) << b.output;
+  EXPECT_NE(b.output.find("NeRF outputs not written"), std::string::npos) << b.output;
+  const auto brep = readReport(blocked);
+  EXPECT_TRUE(brep.value("nerf_outputs_failed", false));
+  EXPECT_TRUE(std::filesystem::exists(blocked / "trajectory.txt"));
+  for (const auto& o : brep.at("outputs")) EXPECT_NE(o.get<std::string>().rfind("nerf", 0), 0u) << o;
   for (const auto* d : {&out, &sparse_out}) {
     const cv::Mat plot = cv::imread((*d / "trajectory.png").string());
     EXPECT_EQ(plot.size(), cv::Size(1200, 900)) << *d;

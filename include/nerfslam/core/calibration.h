@@ -2,6 +2,7 @@
 // Intrinsic calibration from chessboard photos (Zhang's method through OpenCV): the library side of
 // `nerfslam calibrate`.
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -41,7 +42,13 @@ struct CalibrationResult {
 // camera. Reprojection errors are computed with the returned Camera. Throws an Error when the
 // directory has no images, the images differ in size, the board is found in fewer than 3 images, or
 // the optimisation fails.
+//
+// load reads an image as 8-bit grey (default: cv::imread). An image it cannot read, or that it
+// refuses by throwing (the CLI passes io/image_io.h's readImage, which refuses truncated and corrupt
+// PNG and JPEG files), is reported in `images` with the reason and left out, as one without a board.
+using CalibrationImageLoader = std::function<cv::Mat(const std::filesystem::path&)>;
 CalibrationResult calibrateFromImages(const std::filesystem::path& image_dir, const ChessboardSpec& board,
-                                      DistortionModel model = DistortionModel::kRadTan);
+                                      DistortionModel model = DistortionModel::kRadTan,
+                                      const CalibrationImageLoader& load = {});
 
 }  // namespace nerfslam
