@@ -171,6 +171,19 @@ ceres::Solver::Options solverOptions(const BundleAdjustmentOptions& opt, int ite
   return so;
 }
 
+// Ends a solve after the iteration in which should_stop() became true (USER_SUCCESS: Ceres keeps
+// the parameters of the last successful step).
+class StopCallback : public ceres::IterationCallback {
+ public:
+  explicit StopCallback(const std::function<bool()>& should_stop) : should_stop_(should_stop) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary&) override {
+    return should_stop_ && should_stop_() ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  const std::function<bool()>& should_stop_;
+};
+
 // The steps of bundleAdjust on one validated problem: its parameters (poses as in poseToParams,
 // points), the Ceres problem over the inlier observations and the classification in res_.inlier.
 class BundleAdjuster {
@@ -313,6 +326,8 @@ class BundleAdjuster {
     for (int i = 0; i < nc_; ++i)
       if (problem_.HasParameterBlock(poses_[i].data())) ordering->AddElementToGroup(poses_[i].data(), 1);
     so.linear_solver_ordering.reset(ordering);
+    StopCallback stop(opt_.should_stop);
+    if (opt_.should_stop) so.callbacks.push_back(&stop);
     ceres::Solver::Summary summary;
     ceres::Solve(so, &problem_, &summary);
     res_.iterations += static_cast<int>(summary.iterations.size());

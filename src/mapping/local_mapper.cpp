@@ -406,7 +406,7 @@ MappingStats LocalMapper::processKeyframe(KeyframeId id) {
   return s;
 }
 
-BaResult LocalMapper::globalBundleAdjustment(int iterations) {
+BaResult LocalMapper::globalBundleAdjustment(int iterations, const std::function<bool()>& should_stop) {
   const auto ids = map_.keyframeIds();
   if (ids.size() < 2 || iterations <= 0) return {};
   std::vector<KeyframeId> free;
@@ -423,6 +423,7 @@ BaResult LocalMapper::globalBundleAdjustment(int iterations) {
   ba.refine_iterations = iterations / 2;
   ba.max_solver_time_s = std::max(ba.max_solver_time_s, 30.0);
   ba.function_tolerance = std::min(ba.function_tolerance, 1e-6);  // the final map: converge fully
+  ba.should_stop = should_stop;
   std::vector<PointId> pts;
   for (const auto& p : map_.points()) pts.push_back(p.id);
   return runBa(free, fixed, pts, ba);

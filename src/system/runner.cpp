@@ -593,7 +593,8 @@ RunResult runSlam(const RunOptions& ro) {
   std::vector<std::string> skipped;
   const bool global_ba = stopRequests() < 2;
   if (!global_ba) skipped.push_back("global_ba");
-  slam.finish(global_ba);
+  // A second signal during the global BA ends it after the iteration in hand.
+  slam.finish(global_ba, [] { return stopRequests() >= 2; });
   if (!trainNerfFinal(slam, sys)) skipped.push_back("final_nerf_training");
   NerfEvalOptions eval_options = sys.nerf.outputs;
   eval_options.model_only = stopRequests() >= 2;

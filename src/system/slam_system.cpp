@@ -425,7 +425,7 @@ void SlamSystem::submitIfKeyframe(const std::shared_ptr<const Frame>& frame, con
                 res.num_matches, res.num_candidates, res.rms_px, d.reason, rec.keyframe ? " -> keyframe" : "");
 }
 
-void SlamSystem::finish(bool global_ba) {
+void SlamSystem::finish(bool global_ba, const std::function<bool()>& stop_global_ba) {
   if (finished_) return;
   finished_ = true;
   mapping_->stop();
@@ -433,7 +433,7 @@ void SlamSystem::finish(bool global_ba) {
   map_->flushTrackingStatistics();  // statistics queued while the mapping thread held the map
   if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0 &&
       map_mode_ != MapMode::kLocalize) {
-    const BaResult r = mapping_->mapper().globalBundleAdjustment(opt_.mapping.global_ba_iterations);
+    const BaResult r = mapping_->mapper().globalBundleAdjustment(opt_.mapping.global_ba_iterations, stop_global_ba);
     spdlog::info("global BA: {} keyframes, {} points, rmse {:.2f} -> {:.2f} px, {} outliers, {:.0f} ms",
                  map_->numKeyframes(), map_->numPoints(), r.initial_rmse_px, r.final_rmse_px, r.outliers, r.time_ms);
   }

@@ -119,6 +119,30 @@ TEST(BundleAdjustment, NoiseFreeConvergesToZeroError) {
     EXPECT_TRUE(s.truth.cameras[i].T_world_cam.isApprox(s.noisy.cameras[i].T_world_cam, 1e-5)) << i;
 }
 
+// should_stop ends a solve after the iteration in which it turned true (a run stopped twice during
+// its global BA): fewer iterations, and the parameters of the last step, which lowered the error.
+TEST(BundleAdjustment, StopRequestEndsTheSolveAfterTheIterationInHand) {
+  Scene full = makeScene(5, 100, 0.0, 0.0, 3);
+  full.noisy.cameras[1].T_world_cam = full.truth.cameras[1].T_world_cam;
+  full.noisy.cameras[1].fixed = true;
+  Scene stopped = full;
+  BundleAdjustmentOptions opt;
+  opt.max_iterations = 100;
+  opt.refine_iterations = 0;
+  opt.max_solver_time_s = 20;
+  opt.function_tolerance = 1e-12;
+  const BaResult r_full = bundleAdjust(full.noisy, opt);
+  int calls = 0;
+  opt.should_stop = [&calls] { return ++calls >= 2; };
+  const BaResult r_stop = bundleAdjust(stopped.noisy, opt);
+  std::printf("full solve: %d iterations, rmse %.3g -> %.3g px; stopped: %d iterations, %.3g px\n", r_full.iterations,
+              r_full.initial_rmse_px, r_full.final_rmse_px, r_stop.iterations, r_stop.final_rmse_px);
+  EXPECT_GT(r_full.iterations, 3);
+  EXPECT_LE(r_stop.iterations, 3);
+  EXPECT_LT(r_stop.final_rmse_px, r_stop.initial_rmse_px);
+  EXPECT_GT(r_stop.final_rmse_px, r_full.final_rmse_px);
+}
+
 TEST(BundleAdjustment, FixedCamerasAndPointsStayPut) {
   Scene s = makeScene(4, 50, 1.0, 0.0, 5);
   for (auto& p : s.noisy.points) p.fixed = true;

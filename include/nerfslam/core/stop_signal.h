@@ -5,7 +5,8 @@
 //   1st signal: stop taking new work (`run` reads no more frames; `train` takes no more steps) and
 //               finish what is needed for complete outputs (`run`: global BA, the final NeRF
 //               training cut to kShortenedFinalSeconds at most, every output file).
-//   2nd signal: skip what is left that only improves the result (global BA not yet started, the
+//   2nd signal: skip what is left that only improves the result (the global BA, or the rest of a
+//               running one after its current iteration, the
 //               final NeRF training, the NeRF's held-out renders, mesh and cloud); the trajectory,
 //               keyframes, map folder, NeRF model and report are still written.
 //   3rd signal: exit at once with 128 + the signal (outputs are written atomically, so what is on

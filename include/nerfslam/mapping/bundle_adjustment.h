@@ -5,6 +5,7 @@
 // Huber loss is used, observations whose error exceeds the outlier threshold after the first solve
 // are removed and the problem is solved again.
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -38,6 +39,9 @@ struct BundleAdjustmentOptions {
   int num_threads = 1;
   double max_solver_time_s = 1.0;    // per solve
   double function_tolerance = 1e-3;  // a solve stops when an iteration lowers the cost by less (relative)
+  // Not an option: when set and true after an iteration, the solve ends there with the parameters of
+  // its last successful step (a run stopped a second time ends its global BA early).
+  std::function<bool()> should_stop;
 
   template <class V>
   void visit(V& v) {

@@ -12,6 +12,7 @@
 // Works on copies of the map and publishes each step with one Map call.
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -92,7 +93,8 @@ class LocalMapper {
   BaResult localBundleAdjustment(KeyframeId id, int* n_keyframes = nullptr, int* n_points = nullptr);
   int cullRedundantKeyframes(KeyframeId id);
   // All keyframes and points, the first keyframe fixed.
-  BaResult globalBundleAdjustment(int iterations);
+  // should_stop: checked after every iteration; true ends the BA there (a run stopped twice).
+  BaResult globalBundleAdjustment(int iterations, const std::function<bool()>& should_stop = {});
   // Points the system created outside the mapper (initialisation) enter probation too.
   void addRecentPoints(const std::vector<PointId>& ids, KeyframeId created_at);
 

@@ -136,7 +136,8 @@ class SlamSystem {
   // nerfslam::Error for an image of the wrong size or type.
   FrameRecord trackFrame(const cv::Mat& image, double timestamp, uint64_t index);
   // Stops mapping (after the queued keyframes) and runs the global bundle adjustment.
-  void finish(bool global_ba = true);
+  // stop_global_ba: checked after every iteration of the global BA; true ends it there.
+  void finish(bool global_ba = true, const std::function<bool()>& stop_global_ba = {});
 
   TrackingState state() const { return state_; }
   bool initialized() const { return initialized_once_; }
