@@ -17,6 +17,7 @@ struct SynthArgs {
   std::string distortion;
   std::string out;
   int64_t seed = 1;
+  bool no_odometry = false;
 };
 
 nerfslam::cli::Registrar reg(
@@ -50,11 +51,27 @@ nerfslam::cli::Registrar reg(
                      "accurate SLAM)")
           ->check(CLI::IsMember({"trilinear", "mip-nearest"}))
           ->capture_default_str();
+      auto& od = o.odometry;
+      sub.add_option("--odometry-noise", od.noise,
+                     "odometry.txt: RMS of each frame step's translation error, fraction of the step (0: exact)")
+          ->capture_default_str();
+      sub.add_option("--odometry-rot-noise", od.rot_noise,
+                     "odometry.txt: RMS of each frame step's rotation error, fraction of the step's angle")
+          ->capture_default_str();
+      sub.add_option("--odometry-bias", od.bias, "odometry.txt: scale error of every translation (0.01: 1 % more)")
+          ->capture_default_str();
+      sub.add_option("--odometry-slip", od.slip, "odometry.txt: probability that a frame step slips")
+          ->capture_default_str();
+      sub.add_option("--odometry-slip-gain", od.slip_gain,
+                     "odometry.txt: a slipping step reports (1 + gain) x its translation")
+          ->capture_default_str();
+      sub.add_flag("--no-odometry", a->no_odometry, "Write no odometry.txt");
       sub.add_option("--out", a->out, "Output folder")->required();
       return [a]() -> int {
         auto& o = a->opts;
         if (a->seed < 0) nerfslam::fail("--seed must be >= 0 (got {})", a->seed);
         o.seed = static_cast<uint64_t>(a->seed);
+        if (a->no_odometry) o.odometry.enabled = false;
         if (!a->size.empty()) {
           if (!o.camera_yaml.empty()) nerfslam::fail("give either --size or --camera, not both");
           nerfslam::parseImageSize(a->size, "--size", 1, &o.width, &o.height);
