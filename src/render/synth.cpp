@@ -86,13 +86,18 @@ void SynthOdometry::validate() const {
   if (!(rot_noise >= 0) || rot_noise > 1) fail("odometry rotation noise must be in [0, 1] (got {})", rot_noise);
   if (!(bias > -0.5) || bias > 0.5) fail("odometry bias must be in (-0.5, 0.5] (got {})", bias);
   if (!(slip >= 0) || slip > 1) fail("odometry slip must be in [0, 1] (got {})", slip);
+  if (!(slip_seconds > 0) || slip_seconds > 3600)
+    fail("odometry slip episodes must last (0, 3600] s (got {})", slip_seconds);
   if (!(slip_gain >= -1) || slip_gain > 10) fail("odometry slip gain must be in [-1, 10] (got {})", slip_gain);
   if (!T_base_cam.translation().allFinite() || !T_base_cam.rotation().coeffs().allFinite())
     fail("odometry extrinsic T_base_cam is not finite");
 }
 
-std::vector<SE3> synthOdometry(const std::vector<SE3>& T_world_cam, const SynthOdometry& o, uint64_t seed) {
+std::vector<SE3> synthOdometry(const std::vector<SE3>& T_world_cam, const SynthOdometry& o, uint64_t seed, double fps) {
   o.validate();
+  if (!(fps > 0) || !std::isfinite(fps)) fail("odometry: fps must be > 0 (got {})", fps);
+  const int slip_frames = std::max(1, static_cast<int>(std::lround(o.slip_seconds * fps)));
+  int slip_left = 0;
   std::vector<SE3> out;
   if (T_world_cam.empty()) return out;
   const SE3 T_cam_base = o.T_base_cam.inverse();
@@ -112,7 +117,12 @@ std::vector<SE3> synthOdometry(const std::vector<SE3>& T_world_cam, const SynthO
     prev_base = base;
     // Every draw is made whatever the settings, so one setting changes nothing but its own term.
     const Eigen::Vector3d n = randn3(), m = randn3();
-    const bool slipping = unit(rng) < o.slip;
+    // Slip in episodes of slip_frames steps, started so that a fraction `slip` of the steps slips.
+    const double u = unit(rng);
+    if (slip_left == 0 && o.slip > 0 && o.slip < 1 && u < o.slip / (slip_frames * (1.0 - o.slip) + o.slip))
+      slip_left = slip_frames;
+    const bool slipping = o.slip >= 1 || slip_left > 0;
+    if (slip_left > 0) --slip_left;
     const Eigen::Vector3d& t = D.translation();
     Eigen::Vector3d tn =
         (1.0 + o.bias) * (slipping ? 1.0 + o.slip_gain : 1.0) * t + o.noise / std::sqrt(3.0) * t.norm() * n;
@@ -423,7 +433,7 @@ SynthResult writeSynthSequence(const SynthOptions& opts, const fs::path& out,
   std::vector<SE3> odometry;
   std::string odometry_header;
   if (od.enabled) {
-    odometry = synthOdometry(poses, od, opts.seed);
+    odometry = synthOdometry(poses, od, opts.seed, opts.fps);
     const Eigen::Matrix4d E = od.T_base_cam.matrix();
     std::string e;
     for (int r = 0; r < 4; ++r)

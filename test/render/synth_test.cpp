@@ -192,7 +192,7 @@ TEST(Synth, WritesTumLayoutThatTheReadersLoad) {
   ASSERT_EQ(odo.size(), 12u);
   std::vector<SE3> cams;
   for (int i = 0; i < 12; ++i) cams.push_back(seq.pose(i));
-  const auto expected_odo = synthOdometry(cams, o.odometry, o.seed);
+  const auto expected_odo = synthOdometry(cams, o.odometry, o.seed, o.fps);
   for (size_t i = 0; i < odo.size(); ++i) {
     EXPECT_NEAR(odo[i].timestamp, ds->timestamp(i), 1e-9);
     EXPECT_TRUE(odo[i].pose.isApprox(expected_odo[i], 1e-12)) << i;
@@ -209,7 +209,7 @@ TEST(Synth, OdometryIsExactWithoutNoiseAndNoisyAsAsked) {
   for (int i = 0; i < 601; ++i) cams.push_back(traj.pose(i / 30.0));
   SynthOdometry exact;
   exact.noise = exact.rot_noise = 0;
-  const auto odo = synthOdometry(cams, exact, 1);
+  const auto odo = synthOdometry(cams, exact, 1, 30);
   ASSERT_EQ(odo.size(), cams.size());
   const SE3 Tbc = SynthOdometry::defaultBaseToCamera();
   EXPECT_TRUE(odo[0].isApprox(SE3(), 1e-15));
@@ -229,7 +229,7 @@ TEST(Synth, OdometryIsExactWithoutNoiseAndNoisyAsAsked) {
     return t.norm() / t_true.norm();
   };
   SynthOdometry noisy;  // the defaults: 2 % noise
-  const auto on = synthOdometry(cams, noisy, 1);
+  const auto on = synthOdometry(cams, noisy, 1, 30);
   double sq = 0;
   int n = 0;
   for (size_t i = 1; i < cams.size(); ++i) {
@@ -244,22 +244,29 @@ TEST(Synth, OdometryIsExactWithoutNoiseAndNoisyAsAsked) {
   EXPECT_FALSE(on.back().isApprox(odo.back(), 1e-3)) << "noise must accumulate";
   SynthOdometry biased = exact;
   biased.bias = 0.05;
-  const auto ob = synthOdometry(cams, biased, 1);
+  const auto ob = synthOdometry(cams, biased, 1, 30);
   for (size_t i = 1; i < cams.size(); i += 50) EXPECT_NEAR(stepRatio(ob, i, nullptr), 1.05, 1e-9) << i;
   SynthOdometry slipping = exact;
   slipping.slip = 0.1;
   slipping.slip_gain = 0.5;
-  const auto os = synthOdometry(cams, slipping, 1);
-  int slips = 0;
+  const auto os = synthOdometry(cams, slipping, 1, 30);
+  // Slip in episodes of 0.5 s (15 steps): 10 % of the steps in all.
+  int slips = 0, episodes = 0;
+  bool prev = false;
   for (size_t i = 1; i < cams.size(); ++i) {
     const double r = stepRatio(os, i, nullptr);
     EXPECT_TRUE(std::abs(r - 1) < 1e-9 || std::abs(r - 1.5) < 1e-9) << r;
-    slips += std::abs(r - 1.5) < 1e-9;
+    const bool slip = std::abs(r - 1.5) < 1e-9;
+    slips += slip;
+    episodes += slip && !prev;
+    prev = slip;
   }
-  EXPECT_NEAR(slips / 600.0, 0.1, 0.035);
+  EXPECT_NEAR(slips / 600.0, 0.1, 0.05);
+  EXPECT_GE(episodes, 1);
+  EXPECT_LE(episodes, slips / 15 + 1) << "slip comes in episodes of 15 steps";
   SynthOdometry bad;
   bad.noise = -1;
-  EXPECT_THROW(synthOdometry(cams, bad, 1), Error);
+  EXPECT_THROW(synthOdometry(cams, bad, 1, 30), Error);
 }
 
 TEST(Synth, DistortedImagesMatchTheIdealCameraThroughUnproject) {

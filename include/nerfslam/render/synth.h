@@ -49,16 +49,18 @@ namespace nerfslam {
 // along the base's x axis, 0.5 m above and 0.1 m ahead of its origin). Each frame-to-frame motion of
 // the base (t, R) is reported as
 //   t' = (1 + bias) (slip ? 1 + slip_gain : 1) t + noise |t| n,   R' = R exp(rot_noise angle(R) m)
+// (slip: in episodes of slip_seconds, a fraction `slip` of the steps in all)
 // with n, m normal 3-vectors of covariance I/3 (so the RMS error of a step is noise x its length),
 // and integrated from the identity at frame 0.
 struct SynthOdometry {
   bool enabled = true;
   SE3 T_base_cam = defaultBaseToCamera();
-  double noise = 0.02;      // RMS of each step's translation error, as a fraction of the step
-  double rot_noise = 0.02;  // RMS of each step's rotation error, as a fraction of the step's angle
-  double bias = 0.0;        // scale error of every translation (0.01: reports 1 % more)
-  double slip = 0.0;        // probability that a frame step slips
-  double slip_gain = 0.5;   // a slipping step reports (1 + slip_gain) x its translation
+  double noise = 0.02;        // RMS of each step's translation error, as a fraction of the step
+  double rot_noise = 0.02;    // RMS of each step's rotation error, as a fraction of the step's angle
+  double bias = 0.0;          // scale error of every translation (0.01: reports 1 % more)
+  double slip = 0.0;          // fraction of the frame steps that slip, in episodes of slip_seconds
+  double slip_seconds = 0.5;  // length of a slip episode
+  double slip_gain = 0.5;     // a slipping step reports (1 + slip_gain) x its translation
 
   static SE3 defaultBaseToCamera();
   void validate() const;
@@ -124,9 +126,10 @@ class SequenceRenderer {
   std::unique_ptr<Impl> impl_;
 };
 
-// The odometry SynthOdometry describes for a camera trajectory: T_odom_base per frame (the first is
-// the identity), deterministic from `seed`.
-std::vector<SE3> synthOdometry(const std::vector<SE3>& T_world_cam, const SynthOdometry& odometry, uint64_t seed);
+// The odometry SynthOdometry describes for a camera trajectory at `fps` frames/s: T_odom_base per
+// frame (the first is the identity), deterministic from `seed`.
+std::vector<SE3> synthOdometry(const std::vector<SE3>& T_world_cam, const SynthOdometry& odometry, uint64_t seed,
+                               double fps);
 
 // 16-bit TUM depth (metres x 5000, rounded; 0 for no depth or beyond 65535 / 5000 m).
 cv::Mat depthToTum16(const cv::Mat& depth_m);
