@@ -30,7 +30,7 @@ nerfslam::cli::Registrar reg(
     [](CLI::App& sub) -> nerfslam::cli::Runner {
       auto a = std::make_shared<RunArgs>();
       sub.add_option("--dataset", a->dataset,
-                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba); "
+                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video); "
                      "without it: the demo on a synthetic room rendered into OUT/sequence");
       sub.add_option("--demo-frames", a->demo_frames, "Frames of the demo sequence (without --dataset)")
           ->check(CLI::Range(30, 100000));

@@ -3,6 +3,7 @@
 #include <sstream>
 
 #include <spdlog/spdlog.h>
+#include <opencv2/videoio.hpp>
 
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
@@ -38,6 +39,28 @@ void writeOdometryFrom(const std::string& spec, const nerfslam::SynthOptions& o,
                o.odometry.bias, o.odometry.slip);
 }
 
+// --video: the colour frames, in order, as OUT/rgb.mkv (FFV1, lossless) or, without that codec,
+// OUT/rgb.avi (HuffYUV, lossless; else MJPG, lossy), at the sequence's frame rate.
+void writeSequenceVideo(const std::filesystem::path& out, double fps) {
+  const auto ds = nerfslam::openDataset("tum", out, nerfslam::DatasetOptions{});
+  const cv::Size size(ds->camera().width, ds->camera().height);
+  for (const auto& [fourcc, name] :
+       {std::pair{"FFV1", "rgb.mkv"}, std::pair{"HFYU", "rgb.avi"}, std::pair{"MJPG", "rgb.avi"}}) {
+    nerfslam::AtomicOutput o(out / name);
+    cv::VideoWriter w(o.tempPath().string(), cv::CAP_FFMPEG,
+                      cv::VideoWriter::fourcc(fourcc[0], fourcc[1], fourcc[2], fourcc[3]), fps, size);
+    if (!w.isOpened()) continue;
+    for (std::size_t i = 0; i < ds->size(); ++i) w.write(ds->load(i, nerfslam::ImageMode::kColor).image);
+    w.release();
+    o.commit();
+    spdlog::info("synth: wrote {} ({}, {} frames at {} frames/s{})", o.path().string(), fourcc, ds->size(), fps,
+                 std::string(fourcc) == "MJPG" ? ", lossy: no lossless codec here" : ", lossless");
+    return;
+  }
+  nerfslam::fail("{}: OpenCV here has no video codec to write the sequence with (tried FFV1, HuffYUV, MJPG)",
+                 out.string());
+}
+
 struct SynthArgs {
   nerfslam::SynthOptions opts;
   std::string size;
@@ -46,6 +69,7 @@ struct SynthArgs {
   int64_t seed = 1;
   bool no_odometry = false;
   std::string odometry_from;
+  bool video = false;
 };
 
 nerfslam::cli::Registrar reg(
@@ -100,6 +124,9 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--odometry-from", a->odometry_from,
                      "[kind:]PATH of a dataset with ground truth: write only OUT/odometry.txt, simulated from its "
                      "camera poses (the --odometry-* flags apply), rendering nothing");
+      sub.add_flag("--video", a->video,
+                   "Also write the colour frames as a video: rgb.mkv (FFV1, lossless), else rgb.avi (HuffYUV; MJPG, "
+                   "lossy, when neither is available)");
       sub.add_option("--out", a->out, "Output folder")->required();
       return [a]() -> int {
         auto& o = a->opts;
@@ -120,6 +147,7 @@ nerfslam::cli::Registrar reg(
           if (o.distortion.size() != 4) nerfslam::fail("--distortion '{}': need 4 numbers k1,k2,p1,p2", a->distortion);
         }
         const auto r = nerfslam::writeSynthSequence(o, a->out);
+        if (a->video) writeSequenceVideo(a->out, o.fps);
         spdlog::info("synth: wrote {} frames to {} in {:.1f} s ({:.1f} frames/s); camera {}", r.frames, a->out,
                      r.seconds, r.frames / std::max(1e-9, r.seconds), r.camera.describe());
         return 0;

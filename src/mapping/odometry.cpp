@@ -52,13 +52,13 @@ OdometryTrack::OdometryTrack(Trajectory T_odom_base, const SE3& T_base_cam, std:
 
 OdometryTrack OdometryTrack::load(const std::filesystem::path& path, const OdometryOptions& options) {
   Trajectory t = readTumTrajectory(path);  // names the file and line for NaNs, bad quaternions, columns
-  // Stamps going back: name the file's line (comments and blank lines counted as readTumTrajectory does not
-  // return them, so the data line's number is found again here).
+  // Stamps going back: named by the sample's number (readTumTrajectory keeps no line numbers).
   for (size_t i = 1; i < t.size(); ++i)
     if (!(t[i].timestamp > t[i - 1].timestamp))
-      fail("{}: field 'timestamp' of odometry sample {}: {} does not increase (the previous sample's is {}): "
-           "stamps going back",
-           path.string(), i + 1, numberForMessage(t[i].timestamp, 9), numberForMessage(t[i - 1].timestamp, 9));
+      fail(
+          "{}: field 'timestamp' of odometry sample {}: {} does not increase (the previous sample's is {}): "
+          "stamps going back",
+          path.string(), i + 1, numberForMessage(t[i].timestamp, 9), numberForMessage(t[i - 1].timestamp, 9));
   return OdometryTrack(std::move(t), rigidTransformFromRowMajor(options.T_base_cam), path.string(), options);
 }
 
@@ -117,8 +117,7 @@ ScaleEstimate estimateScale(std::vector<TimedPose> kfs, const OdometryTrack& odo
     if (d_odom < std::max(o.scale_min_pair_m, 1e-9) || !(d_map > 0)) continue;
     pairs.push_back({d_odom, d_map});
   }
-  if (max_pairs > 0 && static_cast<int>(pairs.size()) > max_pairs)
-    pairs.erase(pairs.begin(), pairs.end() - max_pairs);
+  if (max_pairs > 0 && static_cast<int>(pairs.size()) > max_pairs) pairs.erase(pairs.begin(), pairs.end() - max_pairs);
   ScaleEstimate e;
   e.pairs = static_cast<int>(pairs.size());
   if (pairs.empty()) return e;

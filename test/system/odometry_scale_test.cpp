@@ -27,8 +27,7 @@ nlohmann::json readReport(const fs::path& out) {
 }
 
 // The extrinsic of synth's odometry, in a config file (as config/system/synthetic.yaml has it).
-const char* kOdometryYaml =
-    "odometry:\n  T_base_cam: [0, 0, 1, 0.1, -1, 0, 0, 0, 0, -1, 0, 0.5, 0, 0, 0, 1]\n";
+const char* kOdometryYaml = "odometry:\n  T_base_cam: [0, 0, 1, 0.1, -1, 0, 0, 0, 0, -1, 0, 0.5, 0, 0, 0, 1]\n";
 
 // 10 s of the handheld room (151 frames at 15 frames/s, 640x480: the same walk as 300 at 30) with
 // 2 % odometry noise: the map is metric when the sequence ends. Measured: scale applied at frame 65,
@@ -78,9 +77,9 @@ TEST(OdometryScale, Kitti06WithNoisyOdometryIsMetric) {
     ss << kitti.rdbuf() << kOdometryYaml;
     test::writeText(dir / "kitti_odo.yaml", ss.str());
   }
-  r = test::runCli("run --no-nerf --dataset kitti:" + data.string() + " --config '" + (dir / "kitti_odo.yaml").string() +
-                   "' --odometry '" + (dir / "odo" / "odometry.txt").string() + "' --out '" + (dir / "out").string() +
-                   "'");
+  r = test::runCli("run --no-nerf --dataset kitti:" + data.string() + " --config '" +
+                   (dir / "kitti_odo.yaml").string() + "' --odometry '" + (dir / "odo" / "odometry.txt").string() +
+                   "' --out '" + (dir / "out").string() + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto rep = readReport(dir / "out");
   EXPECT_EQ(rep.at("frames_tracked").get<int>(), 51);

@@ -71,9 +71,10 @@ struct OdometryOptions {
     v("scale_min_pairs", scale_min_pairs, "Usable keyframe pairs before the scale is set", check::range(3, 100000));
     v("scale_min_pair_m", scale_min_pair_m,
       "Keyframe pairs whose odometry moved less (m) are not used to estimate the scale", check::range(0.0, 1e6));
-    v("max_pair_gap_s", max_pair_gap_s, "Keyframes further apart in time (s) are not paired", check::positive<double>());
-    v("max_sample_gap_s", max_sample_gap_s,
-      "Odometry samples further apart in time (s) are not interpolated between", check::positive<double>());
+    v("max_pair_gap_s", max_pair_gap_s, "Keyframes further apart in time (s) are not paired",
+      check::positive<double>());
+    v("max_sample_gap_s", max_sample_gap_s, "Odometry samples further apart in time (s) are not interpolated between",
+      check::positive<double>());
     v("max_stamp_offset_s", max_stamp_offset_s,
       "A keyframe this far (s) outside the odometry's time span gets no odometry", check::nonNegative<double>());
   }
