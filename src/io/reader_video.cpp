@@ -2,8 +2,8 @@
 // whole file once: it counts the frames, takes each one's timestamp from the container
 // (CAP_PROP_POS_MSEC) and checks that every frame has the first one's size. load(i) then decodes
 // sequentially (the next frame is read, frames in between are grabbed, the last one read is kept;
-// going further back reopens the file), under a mutex: a video is one stream. Camera: DatasetOptions::camera_override (a video has no
-// calibration). No ground truth.
+// going further back reopens the file), under a mutex: a video is one stream. Camera: DatasetOptions::camera_override
+// (a video has no calibration). No ground truth.
 //
 // Timestamps: must increase. A decoder flushing its last frames (H.264 with B-frames) reports 0 for
 // them; such a 0 after the first frame is taken as the previous frame's time + 1 / the container's
@@ -11,9 +11,9 @@
 // frame.
 #include <mutex>
 
+#include <spdlog/spdlog.h>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
-#include <spdlog/spdlog.h>
 
 #include "dataset_internal.h"
 #include "nerfslam/core/error.h"
@@ -39,8 +39,8 @@ class VideoDataset : public Dataset {
         first_w = frame.cols;
         first_h = frame.rows;
       } else if (frame.cols != first_w || frame.rows != first_h) {
-        fail("{}: frame {} is {}x{}, the video's first frame is {}x{}: the video changes resolution", file_.string(),
-             n, frame.cols, frame.rows, first_w, first_h);
+        fail("{}: frame {} is {}x{}, the video's first frame is {}x{}: the video changes resolution", file_.string(), n,
+             frame.cols, frame.rows, first_w, first_h);
       }
       double t = cap_.get(cv::CAP_PROP_POS_MSEC) / 1000.0;
       if (!std::isfinite(t)) fail("{}: frame {}: the container gives no timestamp", file_.string(), n);
@@ -134,9 +134,10 @@ class VideoDataset : public Dataset {
   void open() const {
     cap_.release();
     if (!cap_.open(file_.string(), cv::CAP_FFMPEG) || !cap_.isOpened())
-      fail("{}: cannot open the video (not a video file, or a container or codec OpenCV's FFmpeg backend does not "
-           "have)",
-           file_.string());
+      fail(
+          "{}: cannot open the video (not a video file, or a container or codec OpenCV's FFmpeg backend does not "
+          "have)",
+          file_.string());
     next_ = 0;
     last_.release();
   }

@@ -85,7 +85,9 @@ TEST(VideoDataset, BadVideosAreClearErrors) {
   test::writeText(tmp / "text.mp4", "this is not a video\n");
   std::string e = test::errorOf([&] { openDataset("video:" + (tmp / "text.mp4").string(), o); });
   EXPECT_NE(e.find("text.mp4"), std::string::npos) << e;
-  EXPECT_TRUE(e.find("cannot open the video") != std::string::npos || e.find("no frame could be decoded") != std::string::npos) << e;
+  EXPECT_TRUE(e.find("cannot open the video") != std::string::npos ||
+              e.find("no frame could be decoded") != std::string::npos)
+      << e;
   e = test::errorOf([&] { openDataset("video:" + (tmp / "missing.mkv").string(), o); });
   EXPECT_NE(e.find("missing.mkv: dataset path not found"), std::string::npos) << e;
   const fs::path video = writeLosslessVideo(tmp.path(), noiseFrames(3, 64, 48), 30);
