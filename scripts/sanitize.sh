@@ -76,6 +76,8 @@ case $kind in
           'RunSystem\.(Kitti06First51TracksEveryFrameAccurately|NewTsukubaFirst75|WithoutDatasetRunsTheSyntheticRoomDemo)$'
           'MapStoreCli\.(ExtendAddsKeyframesToASavedMap|LocalizesInASavedMapAlongAnotherTrajectory)$'
           'SyntheticSlam\.(LocalizationOnlySwitchStopsAndResumesMapping|HandheldRoomTracksEveryFrameAccurately)$'
+          'OdometryScale\.(SyntheticRoomIsMetricAfterTenSeconds|Kitti06WithNoisyOdometryIsMetric)$'  # 17, 7 s in Release
+          'VideoRun\.LosslessVideoTracksExactlyLikeItsFrames$'  # 12 s in Release: two 640x480 room runs
           'RunStop\.' 'TrainStop\.')  # signals timed for Release speed on whole KITTI / lego runs
     timeout=1800
     targets=(all)

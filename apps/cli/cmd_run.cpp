@@ -22,6 +22,7 @@ struct RunArgs {
   bool localize = false;
   bool extend = false;
   std::string save_map;
+  std::string odometry;
 };
 
 nerfslam::cli::Registrar reg(
@@ -29,7 +30,7 @@ nerfslam::cli::Registrar reg(
     [](CLI::App& sub) -> nerfslam::cli::Runner {
       auto a = std::make_shared<RunArgs>();
       sub.add_option("--dataset", a->dataset,
-                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba); "
+                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video); "
                      "without it: the demo on a synthetic room rendered into OUT/sequence");
       sub.add_option("--demo-frames", a->demo_frames, "Frames of the demo sequence (without --dataset)")
           ->check(CLI::Range(30, 100000));
@@ -52,6 +53,9 @@ nerfslam::cli::Registrar reg(
       auto* ext = sub.add_flag("--extend", a->extend, "With --map: relocalise in the map, then continue mapping");
       loc->needs(map_opt)->excludes(ext);
       ext->needs(map_opt);
+      sub.add_option("--odometry", a->odometry,
+                     "Wheel odometry, TUM format (timestamp tx ty tz qx qy qz qw, the base in its odom frame; the "
+                     "camera's pose in the base: odometry.T_base_cam in --config): metric scale");
       sub.add_option("--save-map", a->save_map,
                      "Save the map folder here at the end (default: OUT/map, except after --localize)");
       return [a]() -> int {
@@ -71,6 +75,7 @@ nerfslam::cli::Registrar reg(
           o.map_mode = a->localize ? nerfslam::MapMode::kLocalize : nerfslam::MapMode::kExtend;
         }
         if (!a->save_map.empty()) o.save_map = a->save_map;
+        if (!a->odometry.empty()) o.odometry = a->odometry;
         // Ctrl-C / SIGTERM: stop reading and write what exists (core/stop_signal.h).
         nerfslam::installStopHandlers();
         const nerfslam::RunResult r = nerfslam::runSlam(o);

@@ -105,8 +105,8 @@ void SequenceDataset::finish(std::vector<FrameEntry> frames, std::optional<Camer
 }  // namespace io_detail
 
 const std::vector<std::string>& datasetKinds() {
-  static const std::vector<std::string> kinds = {"folder",     "tum",        "euroc",   "kitti",
-                                                 "transforms", "middlebury", "strecha", "tsukuba"};
+  static const std::vector<std::string> kinds = {"folder",     "tum",     "euroc",   "kitti", "transforms",
+                                                 "middlebury", "strecha", "tsukuba", "video"};
   return kinds;
 }
 
@@ -146,7 +146,8 @@ std::string detectDatasetKind(const fs::path& path) {
   if (!fs::exists(path, ec)) fail("{}: dataset path not found", path.string());
   if (fs::is_regular_file(path, ec)) {
     if (path.extension() == ".json") return "transforms";
-    fail("{}: a dataset is a folder (or a transforms.json file)", path.string());
+    if (io_detail::isVideoExtension(path)) return "video";
+    fail("{}: a dataset is a folder (or a transforms.json file, or a video file)", path.string());
   }
   // TUM before transforms: `nerfslam synth` writes both rgb.txt and transforms.json, and the TUM
   // reading (camera.yaml, groundtruth.txt) is the primary one.
@@ -174,6 +175,7 @@ std::unique_ptr<Dataset> openDataset(const std::string& kind_in, const fs::path&
   if (!fs::exists(path, ec)) fail("{}: dataset path not found", path.string());
   const std::string kind = kind_in.empty() ? detectDatasetKind(path) : kind_in;
   if (kind == "transforms") return io_detail::openTransforms(path, opts);
+  if (kind == "video") return io_detail::openVideo(path, opts);
   if (!fs::is_directory(path, ec)) fail("{}: a {} dataset must be a folder", path.string(), kind);
   if (kind == "folder") return io_detail::openFolder(path, opts);
   if (kind == "tum") return io_detail::openTum(path, opts);

@@ -66,6 +66,9 @@ std::unique_ptr<Dataset> openTransforms(const fs::path& root, const DatasetOptio
 std::unique_ptr<Dataset> openMiddlebury(const fs::path& root, const DatasetOptions& opts);
 std::unique_ptr<Dataset> openStrecha(const fs::path& root, const DatasetOptions& opts);
 std::unique_ptr<Dataset> openTsukuba(const fs::path& root, const DatasetOptions& opts);
+// A video file (reader_video.cpp); isVideoExtension: .mp4 .avi .mkv .mov .webm .m4v .mpg .mpeg.
+std::unique_ptr<Dataset> openVideo(const fs::path& file, const DatasetOptions& opts);
+bool isVideoExtension(const fs::path& path);
 
 // ---- parsing helpers (dataset_util.cpp) ----
 

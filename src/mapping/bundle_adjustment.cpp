@@ -79,6 +79,26 @@ class ReprojectionCost final : public ceres::SizedCostFunction<2, 7, 3> {
   bool disabled_ = false;
 };
 
+// (R_i c_j + t_i - t_ij) / sigma with poses (q, t) of T_cam_world: R_i (c_j - c_i) = R_i c_j + t_i and
+// c_j = -R_j^T t_j.
+struct RelativeTranslationResidual {
+  RelativeTranslationResidual(const Eigen::Vector3d& t_ij, double sigma) : t_ij_(t_ij), inv_sigma_(1.0 / sigma) {}
+  template <typename T>
+  bool operator()(const T* xi, const T* xj, T* r) const {
+    const T qj_inv[4] = {xj[0], -xj[1], -xj[2], -xj[3]};
+    const T tj[3] = {xj[4], xj[5], xj[6]};
+    T cj[3];
+    ceres::QuaternionRotatePoint(qj_inv, tj, cj);  // R_j^T t_j (normalises q)
+    for (int k = 0; k < 3; ++k) cj[k] = -cj[k];
+    T p[3];
+    ceres::QuaternionRotatePoint(xi, cj, p);
+    for (int k = 0; k < 3; ++k) r[k] = (p[k] + xi[4 + k] - T(t_ij_[k])) * T(inv_sigma_);
+    return true;
+  }
+  Eigen::Vector3d t_ij_;
+  double inv_sigma_;
+};
+
 constexpr int kDenseSchurMaxCameras = 40;
 
 using PoseManifold = ceres::ProductManifold<ceres::QuaternionManifold, ceres::EuclideanManifold<3>>;
@@ -122,6 +142,11 @@ std::unique_ptr<ceres::CostFunction> makeReprojectionCost(const Eigen::Vector2d&
   return std::make_unique<ReprojectionCost>(uv, sigma, fx, fy, cx, cy);
 }
 
+std::unique_ptr<ceres::CostFunction> makeRelativeTranslationCost(const Eigen::Vector3d& t_ij, double sigma) {
+  return std::make_unique<ceres::AutoDiffCostFunction<RelativeTranslationResidual, 3, 7, 7>>(
+      new RelativeTranslationResidual(t_ij, sigma));
+}
+
 double reprojectionError(const BaProblem& problem, const BaProblem::Observation& obs) {
   double x[7];
   poseToParams(problem.cameras.at(obs.camera).T_world_cam, x);
@@ -137,6 +162,12 @@ void validateObservations(const BaProblem& pb) {
     if (o.camera < 0 || o.camera >= nc || o.point < 0 || o.point >= np)
       fail("bundle adjustment: observation refers to camera {} / point {} of {} / {}", o.camera, o.point, nc, np);
     if (!(o.sigma > 0) || !o.uv.allFinite()) fail("bundle adjustment: invalid observation (sigma {})", o.sigma);
+  }
+  for (const auto& r : pb.relative_translations) {
+    if (r.camera_i < 0 || r.camera_i >= nc || r.camera_j < 0 || r.camera_j >= nc || r.camera_i == r.camera_j)
+      fail("bundle adjustment: relative translation between cameras {} and {} of {}", r.camera_i, r.camera_j, nc);
+    if (!(r.sigma > 0) || !(r.huber > 0) || !r.t_ij.allFinite())
+      fail("bundle adjustment: invalid relative translation (sigma {}, huber {})", r.sigma, r.huber);
   }
 }
 
@@ -259,6 +290,13 @@ class BundleAdjuster {
       cam_used_[o.camera] = true;
       pt_used_[o.point] = true;
     }
+    for (const auto& r : pb_.relative_translations) {
+      rel_costs_.push_back(makeRelativeTranslationCost(r.t_ij, r.sigma));
+      rel_losses_.push_back(std::make_unique<ceres::HuberLoss>(r.huber));
+      problem_.AddResidualBlock(rel_costs_.back().get(), rel_losses_.back().get(), poses_[r.camera_i].data(),
+                                poses_[r.camera_j].data());
+      cam_used_[r.camera_i] = cam_used_[r.camera_j] = true;
+    }
     for (int i = 0; i < nc_; ++i) {
       if (!cam_used_[i]) continue;
       problem_.SetManifold(poses_[i].data(), new PoseManifold());
@@ -360,6 +398,8 @@ class BundleAdjuster {
   std::vector<Eigen::Vector3d> pts_;
   // Declared before problem_, which refers to them: destroyed after it.
   std::deque<ReprojectionCost> costs_;
+  std::vector<std::unique_ptr<ceres::CostFunction>> rel_costs_;
+  std::vector<std::unique_ptr<ceres::HuberLoss>> rel_losses_;
   ceres::HuberLoss huber_;
   ceres::Problem problem_;
   std::vector<ReprojectionCost*> cost_of_;

@@ -303,6 +303,32 @@ BaResult LocalMapper::runBa(const std::vector<KeyframeId>& free_kfs, const std::
       obs_ids.emplace_back(p.id, k);
     }
   }
+  last_odometry_constraints_ = 0;
+  if (odometry_ && odometryActive() && odometry_->options().constrain_ba) {
+    const OdometryOptions& oo = odometry_->options();
+    std::vector<int> order(kfs.size());
+    for (size_t i = 0; i < kfs.size(); ++i) order[i] = static_cast<int>(i);
+    std::sort(order.begin(), order.end(), [&](int a, int b) { return kfs[a].timestamp() < kfs[b].timestamp(); });
+    for (size_t k = 1; k < order.size(); ++k) {
+      const int i = order[k - 1], j = order[k];
+      if (pb.cameras[i].fixed && pb.cameras[j].fixed) continue;
+      const double ti = kfs[i].timestamp(), tj = kfs[j].timestamp();
+      if (tj - ti > oo.max_pair_gap_s) continue;
+      const auto m = odometry_->cameraMotion(ti, tj);
+      if (!m) continue;
+      // A pair whose odometry disagrees with the (metric) map by more than the gate is left out: wheel
+      // slip. Coherent slips would otherwise pull a global BA's free scale however robust the loss.
+      const double d_odom = m->translation().norm();
+      const double d_map = (kfs[j].T_world_cam.translation() - kfs[i].T_world_cam.translation()).norm();
+      if (std::abs(d_odom - d_map) > std::max(oo.gate_ratio * d_odom, 3.0 * oo.min_sigma_m)) {
+        ++odometry_gated_;
+        continue;
+      }
+      const double sigma = oo.translation_noise * d_odom + oo.min_sigma_m;
+      pb.relative_translations.push_back({i, j, m->translation(), sigma, oo.huber_sigma});
+    }
+    last_odometry_constraints_ = static_cast<int>(pb.relative_translations.size());
+  }
   BaResult r = bundleAdjust(pb, ba);
   MapUpdate u;
   for (const auto& [k, ci] : cam_index)

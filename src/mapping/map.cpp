@@ -445,6 +445,14 @@ std::vector<KeyframeId> Map::keyframeIds() const {
   return out;
 }
 
+std::vector<TimedPose> Map::keyframePoses() const {
+  auto lock = lockShared(mutex_);
+  std::vector<TimedPose> out;
+  out.reserve(keyframes_.size());
+  for (const auto& [id, kf] : keyframes_) out.push_back({kf.timestamp(), kf.T_world_cam});
+  return out;
+}
+
 std::vector<MapPoint> Map::points() const {
   auto lock = lockShared(mutex_);
   std::vector<MapPoint> out;

@@ -7,6 +7,7 @@
 #include <deque>
 #include <exception>
 #include <mutex>
+#include <random>
 #include <thread>
 
 #include <fmt/format.h>
@@ -72,6 +73,76 @@ void SynthOptions::validate() const {
   if (index_every < 1) fail("index_every must be >= 1");
   parseTextureFilter(texture_filter);
   if (queue_size < 1) fail("queue_size must be >= 1");
+  odometry.validate();
+}
+
+SE3 SynthOdometry::defaultBaseToCamera() {
+  Eigen::Matrix3d R;  // columns: the camera's x (right), y (down), z (forward) in the base frame
+  R << 0, 0, 1, -1, 0, 0, 0, -1, 0;
+  return SE3(R, Eigen::Vector3d(0.1, 0.0, 0.5));
+}
+
+void SynthOdometry::validate() const {
+  if (!(noise >= 0) || noise > 1) fail("odometry noise must be in [0, 1] (got {})", noise);
+  if (!(rot_noise >= 0) || rot_noise > 1) fail("odometry rotation noise must be in [0, 1] (got {})", rot_noise);
+  if (!(bias > -0.5) || bias > 0.5) fail("odometry bias must be in (-0.5, 0.5] (got {})", bias);
+  if (!(slip >= 0) || slip > 1) fail("odometry slip must be in [0, 1] (got {})", slip);
+  if (!(slip_seconds > 0) || slip_seconds > 3600)
+    fail("odometry slip episodes must last (0, 3600] s (got {})", slip_seconds);
+  if (!(slip_gain >= -1) || slip_gain > 10) fail("odometry slip gain must be in [-1, 10] (got {})", slip_gain);
+  if (!T_base_cam.translation().allFinite() || !T_base_cam.rotation().coeffs().allFinite())
+    fail("odometry extrinsic T_base_cam is not finite");
+}
+
+std::vector<SE3> synthOdometry(const std::vector<SE3>& T_world_cam, const SynthOdometry& o, uint64_t seed, double fps) {
+  o.validate();
+  if (!(fps > 0) || !std::isfinite(fps)) fail("odometry: fps must be > 0 (got {})", fps);
+  const int slip_frames = std::max(1, static_cast<int>(std::lround(o.slip_seconds * fps)));
+  int slip_left = 0;
+  std::vector<SE3> out;
+  if (T_world_cam.empty()) return out;
+  const SE3 T_cam_base = o.T_base_cam.inverse();
+  std::mt19937_64 rng(synthSeed(seed, 4242));
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const auto randn3 = [&] {
+    const double x = gauss(rng), y = gauss(rng), z = gauss(rng);
+    return Eigen::Vector3d(x, y, z);
+  };
+  out.reserve(T_world_cam.size());
+  out.push_back(SE3());
+  SE3 prev_base = T_world_cam[0] * T_cam_base;
+  for (size_t i = 1; i < T_world_cam.size(); ++i) {
+    const SE3 base = T_world_cam[i] * T_cam_base;
+    const SE3 D = prev_base.inverse() * base;  // the true step in the previous base frame
+    prev_base = base;
+    // Every draw is made whatever the settings, so one setting changes nothing but its own term.
+    const Eigen::Vector3d n = randn3(), m = randn3();
+    // Slip in episodes of slip_frames steps, started so that a fraction `slip` of the steps slips.
+    const double u = unit(rng);
+    if (slip_left == 0 && o.slip > 0 && o.slip < 1 && u < o.slip / (slip_frames * (1.0 - o.slip) + o.slip))
+      slip_left = slip_frames;
+    const bool slipping = o.slip >= 1 || slip_left > 0;
+    if (slip_left > 0) --slip_left;
+    const Eigen::Vector3d& t = D.translation();
+    Eigen::Vector3d tn =
+        (1.0 + o.bias) * (slipping ? 1.0 + o.slip_gain : 1.0) * t + o.noise / std::sqrt(3.0) * t.norm() * n;
+    Eigen::Quaterniond q = D.rotation();
+    const double angle = Eigen::AngleAxisd(q).angle();
+    if (o.rot_noise > 0 && angle > 0) {
+      Vector6d xi = Vector6d::Zero();
+      xi.tail<3>() = o.rot_noise / std::sqrt(3.0) * angle * m;
+      q = q * SE3::exp(xi).rotation();
+    }
+    if (o.noise == 0 && o.bias == 0 && !(slipping && o.slip_gain != 0)) tn = t;  // exact: no arithmetic noise
+    out.push_back(out.back() * SE3(q, tn));
+  }
+  if (o.noise == 0 && o.rot_noise == 0 && o.bias == 0 && (o.slip == 0 || o.slip_gain == 0)) {
+    // Exact odometry: the true poses relative to the first base pose (no accumulated rounding).
+    const SE3 inv0 = (T_world_cam[0] * T_cam_base).inverse();
+    for (size_t i = 0; i < T_world_cam.size(); ++i) out[i] = inv0 * (T_world_cam[i] * T_cam_base);
+  }
+  return out;
 }
 
 Camera synthCamera(const SynthOptions& o) {
@@ -247,13 +318,15 @@ struct Job {
 class IndexWriter {
  public:
   IndexWriter(fs::path out, const Camera& cam, const Scene& scene, std::vector<double> stamps, std::vector<SE3> poses,
-              std::string header)
+              std::vector<SE3> odometry, std::string odometry_header, std::string header)
       : out_(std::move(out)),
         cam_(cam),
         scene_bbox_min_(scene.bbox_min),
         scene_bbox_max_(scene.bbox_max),
         stamps_(std::move(stamps)),
         poses_(std::move(poses)),
+        odometry_(std::move(odometry)),
+        odometry_header_(std::move(odometry_header)),
         header_(std::move(header)) {}
 
   void write(int n) const {
@@ -262,9 +335,17 @@ class IndexWriter {
     std::string depth = "# depth maps (16-bit, metres x 5000, 0 = no depth)\n# " + header_ + "\n# timestamp filename\n";
     std::string gt = "# ground truth trajectory (T_world_cam, OpenCV optical axes)\n# " + header_ +
                      "\n# timestamp tx ty tz qx qy qz qw\n";
+    std::string odom = "# simulated wheel odometry (T_odom_base)\n# " + header_ + "\n# " + odometry_header_ +
+                       "\n# timestamp tx ty tz qx qy qz qw\n";
     nlohmann::json frames = nlohmann::json::array();
     for (int i = 0; i < n; ++i) {
       const std::string s = stampName(stamps_[i]);
+      if (!odometry_.empty()) {
+        const auto& oq = odometry_[i].rotation();
+        const auto& ot = odometry_[i].translation();
+        odom += fmt::format("{} {:.17g} {:.17g} {:.17g} {:.17g} {:.17g} {:.17g} {:.17g}\n", s, ot.x(), ot.y(), ot.z(),
+                            oq.x(), oq.y(), oq.z(), oq.w());
+      }
       rgb += fmt::format("{} rgb/{}.png\n", s, s);
       depth += fmt::format("{} depth/{}.png\n", s, s);
       const auto& q = poses_[i].rotation();
@@ -284,6 +365,7 @@ class IndexWriter {
     writeStringAtomic(out_ / "rgb.txt", rgb);
     writeStringAtomic(out_ / "depth.txt", depth);
     writeStringAtomic(out_ / "groundtruth.txt", gt);
+    if (!odometry_.empty()) writeStringAtomic(out_ / "odometry.txt", odom);
     writeStringAtomic(out_ / "transforms.json", transformsJson(frames).dump(2) + "\n");
   }
 
@@ -322,6 +404,8 @@ class IndexWriter {
   Eigen::Vector3d scene_bbox_min_, scene_bbox_max_;
   std::vector<double> stamps_;
   std::vector<SE3> poses_;
+  std::vector<SE3> odometry_;  // empty: no odometry.txt
+  std::string odometry_header_;
   std::string header_;
 };
 
@@ -346,8 +430,21 @@ SynthResult writeSynthSequence(const SynthOptions& opts, const fs::path& out,
     poses.push_back(seq.pose(i));
   }
   const std::string tname = seq.trajectory().name();
+  const auto& od = opts.odometry;
+  std::vector<SE3> odometry;
+  std::string odometry_header;
+  if (od.enabled) {
+    odometry = synthOdometry(poses, od, opts.seed, opts.fps);
+    const Eigen::Matrix4d E = od.T_base_cam.matrix();
+    std::string e;
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) e += fmt::format("{}{:.9g}", e.empty() ? "" : ", ", E(r, c));
+    odometry_header =
+        fmt::format("noise {} rot_noise {} bias {} slip {} slip_gain {}; T_base_cam (odometry.T_base_cam): [{}]",
+                    od.noise, od.rot_noise, od.bias, od.slip, od.slip_gain, e);
+  }
   const IndexWriter index(
-      out, seq.camera(), seq.scene(), stamps, poses,
+      out, seq.camera(), seq.scene(), stamps, poses, std::move(odometry), odometry_header,
       fmt::format("nerfslam synth: scene {} trajectory {}{} seed {} {}x{} @ {} fps", opts.scene, tname,
                   opts.laps > 1 ? fmt::format(" laps {}", opts.laps) : "", opts.seed, cam.width, cam.height, opts.fps));
   index.write(0);  // a valid, empty sequence from the start

@@ -74,6 +74,62 @@ std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   return openDataset(spec, dopt);
 }
 
+// --odometry: the file read and checked (odometry.h), and its overlap with the frames' timestamps.
+std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const SystemOptions& sys,
+                                                     const Dataset& ds) {
+  if (!ro.odometry) return nullptr;
+  if (ro.map) fail("run: --odometry with --map is not supported (the map keeps the scale it was saved with)");
+  auto odo = std::make_shared<const OdometryTrack>(OdometryTrack::load(*ro.odometry, sys.odometry));
+  std::size_t covered = 0;
+  for (std::size_t i = 0; i < ds.size(); ++i) covered += odo->baseAt(ds.timestamp(i)).has_value();
+  if (covered == 0)
+    fail("{}: field 'timestamp': the odometry does not overlap the images: it spans {} .. {} s, the frames {} .. {} s",
+         ro.odometry->string(), numberForMessage(odo->beginTime(), 3), numberForMessage(odo->endTime(), 3),
+         numberForMessage(ds.size() ? ds.timestamp(0) : 0.0, 3),
+         numberForMessage(ds.size() ? ds.timestamp(ds.size() - 1) : 0.0, 3));
+  spdlog::info("odometry {}: {} samples, {:.3f} .. {:.3f} s, {}/{} frames covered", ro.odometry->string(), odo->size(),
+               odo->beginTime(), odo->endTime(), covered, ds.size());
+  return odo;
+}
+
+// scale_source ("odometry" once the odometry's scale was applied, else "none": a monocular map's
+// scale is arbitrary) and, with odometry, the scale over time (SlamSystem::scaleHistory).
+void addScaleReport(SlamSystem& slam, nlohmann::json& rep) {
+  rep["scale_source"] = slam.metricScale() ? "odometry" : "none";
+  const OdometryTrack* odo = slam.odometry();
+  if (!odo) return;
+  nlohmann::json j;
+  j["file"] = odo->source();
+  j["samples"] = odo->size();
+  j["scale_applied_at_frame"] = slam.scaleAppliedAtFrame();
+  nlohmann::json over = nlohmann::json::array();
+  double applied = 1.0;
+  for (const ScaleSample& s : slam.scaleHistory()) {
+    over.push_back({{"frame", s.frame},
+                    {"timestamp", s.timestamp},
+                    {"keyframes", s.keyframes},
+                    {"pairs", s.estimate.pairs},
+                    {"inliers", s.estimate.inliers},
+                    {"odometry_path_m", s.estimate.path_m},
+                    {"estimate", s.estimate.pairs > 0 ? nlohmann::json(s.estimate.scale) : nlohmann::json(nullptr)},
+                    {"spread", s.estimate.spread},
+                    {"applied_scale", s.applied_scale},
+                    {"applied", s.applied}});
+    applied = s.applied_scale;
+  }
+  j["applied_scale"] = applied;
+  j["ba_pairs_gated"] = slam.mapping().mapper().odometryGated();
+  j["scale_over_time"] = over;
+  if (!slam.metricScale()) {
+    const ScaleEstimate last = slam.scaleHistory().empty() ? ScaleEstimate{} : slam.scaleHistory().back().estimate;
+    const OdometryOptions& o = odo->options();
+    j["failure"] = fmt::format(
+        "the scale was never set: {} usable keyframe pairs and {:.2f} m of odometry (needs {} pairs and {} m)",
+        last.pairs, last.path_m, o.scale_min_pairs, o.scale_min_path_m);
+  }
+  rep["odometry"] = j;
+}
+
 // Outputs are not written into the dataset being read: a folder dataset's frames are every image in
 // its folder, so the PNGs a run writes there (map_preview.png, trajectory.png) would be frames of the
 // next run; and the outputs of any kind would be mixed with the dataset's own files. Checked before
@@ -445,6 +501,12 @@ GroundTruthEval evaluateAgainstGroundTruth(const Dataset& ds, const Trajectory& 
         extent = std::max(extent, (ref[a].pose.translation() - ref[b].pose.translation()).norm());
     rep["gt_extent_m"] = extent;
     rep["ate_max_percent_of_extent"] = extent > 0 ? 100.0 * tr.ape.max / extent : 0.0;
+    // Under SE(3) alignment (no scale fitted): meaningful for a metric map (scale_source "odometry");
+    // for a monocular one beside it for comparison.
+    eo.align = "se3";
+    const TrajectoryReport se3 = evaluateTrajectory(ref, traj, eo);
+    rep["ate_se3_rmse_m"] = se3.ape.rmse;
+    rep["ate_se3_percent_of_path"] = se3.ape_rmse_percent;
   } catch (const std::exception& e) {
     rep["eval_error"] = e.what();
   }
@@ -515,6 +577,10 @@ void printSummary(const SlamSystem& slam, const Dataset& ds, const Trajectory& t
     std::fprintf(stderr, "ATE (Sim3) %.4f m = %.3f%% of %.1f m path, scale %.4f\n", rep["ate_rmse_m"].get<double>(),
                  rep["ate_percent_of_path"].get<double>(), rep["path_length_m"].get<double>(),
                  rep["ate_scale"].get<double>());
+  if (rep.contains("ate_se3_rmse_m"))
+    std::fprintf(stderr, "ATE (SE3, no scale fitted) %.4f m = %.3f%% of the path; scale from %s\n",
+                 rep["ate_se3_rmse_m"].get<double>(), rep["ate_se3_percent_of_path"].get<double>(),
+                 rep.value("scale_source", "none").c_str());
   if (rep.contains("nerf_psnr_heldout"))
     std::fprintf(stderr, "NeRF: %lld steps, held-out PSNR %.2f dB (%zu frames), keyframes %.2f dB%s\n",
                  static_cast<long long>(rep["nerf_steps"].get<int64_t>()), rep["nerf_psnr_heldout"].get<double>(),
@@ -562,12 +628,14 @@ RunResult runSlam(const RunOptions& ro) {
   const SystemOptions sys = loadRunOptions(ro);
   const std::unique_ptr<Dataset> ds = openRunDataset(ro);
   refuseOutputsInDataset(ro, *ds);
+  const std::shared_ptr<const OdometryTrack> odometry = openRunOdometry(ro, sys, *ds);
   ensureDirectory(ro.out);
   const Camera& camera = ds->camera();
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
   spdlog::info("options:\n{}", printOptions(sys));
   StartMap start = openStartMap(ro, camera);
   SlamSystem slam(camera, sys, std::move(start.loaded.map), ro.map_mode);
+  if (odometry) slam.setOdometry(odometry);
   if (start.loaded.nerf_model && slam.nerf())
     slam.nerf()->resume(*start.loaded.nerf_model, ro.map_mode != MapMode::kLocalize);
 
@@ -618,6 +686,7 @@ RunResult runSlam(const RunOptions& ro) {
     rep["skipped"] = skipped;
   }
   const GroundTruthEval ge = evaluateAgainstGroundTruth(*ds, traj, rep);
+  addScaleReport(slam, rep);
   writeRunFiles(slam, *ds, traj, ge, ro.out, eval_options, rep);
   const bool map_save_failed = saveRunMap(slam, ro, camera, sys, rep);
   addRunOutput(rep, "report.json");

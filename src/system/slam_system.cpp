@@ -100,6 +100,10 @@ void SlamSystem::reset() {
   reference_ = -1;
   last_keyframe_pose_.reset();
   pre_init_frames_.clear();
+  metric_scale_ = false;  // the new map starts without a scale
+  applied_scale_ = 1.0;
+  scale_checked_keyframe_ = -1;
+  mapping_->mapper().setOdometryActive(false);
   // Frames tracked against the discarded map lose their poses.
   for (auto& r : records_) {
     if (r.tracked) r.message = "discarded by reset";
@@ -262,6 +266,7 @@ FrameRecord SlamSystem::trackFrame(const cv::Mat& image, double timestamp, uint6
   const auto t0 = std::chrono::steady_clock::now();
   const double cpu0 = threadCpuMs();
   pollInitialization();  // what the mapping thread finished for a new map (initialize())
+  updateOdometryScale(index, timestamp);
   FrameRecord rec;
   rec.index = index;
   rec.timestamp = timestamp;
@@ -423,6 +428,58 @@ void SlamSystem::submitIfKeyframe(const std::shared_ptr<const Frame>& frame, con
   rec.message = d.reason;
   spdlog::debug("frame {}: {} inliers / {} matches / {} candidates, rms {:.2f} px, {}{}", rec.index, res.num_inliers,
                 res.num_matches, res.num_candidates, res.rms_px, d.reason, rec.keyframe ? " -> keyframe" : "");
+}
+
+void SlamSystem::setOdometry(std::shared_ptr<const OdometryTrack> odometry) {
+  if (!records_.empty()) fail("SlamSystem::setOdometry after the first frame");
+  if (odometry && map_mode_ != MapMode::kSlam)
+    fail("odometry with a loaded map ({} mode) is not supported: the map keeps the scale it was saved with",
+         toString(map_mode_));
+  auto hold = mapping_->hold();
+  odometry_ = std::move(odometry);
+  mapping_->mapper().setOdometry(odometry_);
+}
+
+void SlamSystem::updateOdometryScale(uint64_t index, double timestamp) {
+  if (!odometry_ || map_mode_ != MapMode::kSlam || state_ == TrackingState::kNotInitialized || init_handoff_.valid())
+    return;
+  const auto last = map_->lastKeyframeId();
+  if (!last || *last == scale_checked_keyframe_) return;
+  scale_checked_keyframe_ = *last;
+  const auto kfs = map_->keyframePoses();
+  ScaleSample smp;
+  smp.frame = index;
+  smp.timestamp = timestamp;
+  smp.keyframes = static_cast<int>(kfs.size());
+  smp.estimate = estimateScale(kfs, *odometry_, metric_scale_ ? kRecentScalePairs : 0);
+  if (!metric_scale_ && smp.estimate.valid) {
+    applyScale(smp.estimate.scale);
+    smp.applied = true;
+    scale_applied_at_frame_ = static_cast<int64_t>(index);
+    spdlog::info(
+        "odometry: map scale {:.4f} m per unit from {} keyframe pairs ({} inliers, {:.2f} m of odometry, "
+        "spread {:.1f} %), applied at frame {}",
+        smp.estimate.scale, smp.estimate.pairs, smp.estimate.inliers, smp.estimate.path_m, 100 * smp.estimate.spread,
+        index);
+  }
+  smp.applied_scale = applied_scale_;
+  scale_history_.push_back(smp);
+}
+
+void SlamSystem::applyScale(double s) {
+  auto hold = mapping_->hold();  // no bundle adjustment between the map's copy and its update
+  map_->transform(Sim3(s, SE3()));
+  tracker_->scaleMotion(s);
+  const auto scaled = [s](SE3& T) { T = SE3(T.rotation(), s * T.translation()); };
+  for (auto& r : records_) {
+    scaled(r.T_world_cam);
+    scaled(r.T_ref_cam);
+  }
+  if (last_keyframe_pose_) scaled(*last_keyframe_pose_);
+  local_ = TrackingLocalMap{};  // rebuilt at the scaled positions
+  applied_scale_ *= s;
+  metric_scale_ = true;
+  mapping_->mapper().setOdometryActive(true);
 }
 
 void SlamSystem::finish(bool global_ba, const std::function<bool()>& stop_global_ba) {

@@ -137,6 +137,11 @@ void Tracker::setPose(const SE3& T_world_cam, const SE3* T_world_prev) {
   velocity_ = T_world_prev ? T_world_prev->inverse() * T_world_cam : SE3();
 }
 
+void Tracker::scaleMotion(double s) {
+  last_ = SE3(last_.rotation(), s * last_.translation());
+  velocity_ = SE3(velocity_.rotation(), s * velocity_.translation());
+}
+
 SE3 Tracker::predictedPose() const { return has_velocity_ ? last_ * velocity_ : last_; }
 
 TrackingResult Tracker::track(const Frame& frame, const std::vector<TrackingMapPoint>& local_map, const SE3* prior) {

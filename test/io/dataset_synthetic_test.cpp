@@ -163,8 +163,8 @@ TEST(DatasetBadInput, MissingAndEmptyFolders) {
 TEST(DatasetBadInput, UnknownKind) {
   test::TempDir tmp;
   expectError([&] { openDataset("foo:" + tmp.path().string()); },
-              {"'foo'", "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba"});
-  EXPECT_EQ(datasetKinds().size(), 8u);
+              {"'foo'", "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba", "video"});
+  EXPECT_EQ(datasetKinds().size(), 9u);
 }
 
 TEST(DatasetBadInput, TruncatedImageMidSequence) {

@@ -14,6 +14,7 @@
 #include "nerfslam/core/error.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/io/image_io.h"
+#include "nerfslam/io/trajectory.h"
 #include "nerfslam/render/synth.h"
 #include "test_support.h"
 
@@ -186,6 +187,87 @@ TEST(Synth, WritesTumLayoutThatTheReadersLoad) {
   EXPECT_NEAR(ngp->camera().cx, 79.5, 1e-9);
   ASSERT_TRUE(ngp->groundTruth(3).has_value());
   EXPECT_TRUE(ngp->groundTruth(3)->isApprox(seq.pose(3), 1e-9));
+
+  // odometry.txt: the simulated odometry, at the frames' timestamps.
+  const Trajectory odo = readTumTrajectory(tmp.path() / "odometry.txt");
+  ASSERT_EQ(odo.size(), 12u);
+  std::vector<SE3> cams;
+  for (int i = 0; i < 12; ++i) cams.push_back(seq.pose(i));
+  const auto expected_odo = synthOdometry(cams, o.odometry, o.seed, o.fps);
+  for (size_t i = 0; i < odo.size(); ++i) {
+    EXPECT_NEAR(odo[i].timestamp, ds->timestamp(i), 1e-9);
+    EXPECT_TRUE(odo[i].pose.isApprox(expected_odo[i], 1e-12)) << i;
+  }
+}
+
+// Simulated wheel odometry: exact without noise (the base under the camera by T_base_cam, odom at
+// the first base pose), and the noise, bias and slip it was asked for.
+TEST(Synth, OdometryIsExactWithoutNoiseAndNoisyAsAsked) {
+  SynthSceneOptions so;
+  so.textures = "procedural";
+  const auto traj = makeTrajectory(makeScene(so), "handheld", 20.0, 1, 1);
+  std::vector<SE3> cams;
+  for (int i = 0; i < 601; ++i) cams.push_back(traj.pose(i / 30.0));
+  SynthOdometry exact;
+  exact.noise = exact.rot_noise = 0;
+  const auto odo = synthOdometry(cams, exact, 1, 30);
+  ASSERT_EQ(odo.size(), cams.size());
+  const SE3 Tbc = SynthOdometry::defaultBaseToCamera();
+  EXPECT_TRUE(odo[0].isApprox(SE3(), 1e-15));
+  // The camera looks along the base's x axis, 0.5 m above it.
+  EXPECT_NEAR((Tbc.rotationMatrix() * Eigen::Vector3d::UnitZ() - Eigen::Vector3d::UnitX()).norm(), 0, 1e-12);
+  EXPECT_NEAR(Tbc.translation().z(), 0.5, 1e-12);
+  for (size_t i = 0; i < cams.size(); i += 37) {
+    // T_world_cam = T_world_base0 T_odom_base T_base_cam
+    const SE3 back = cams[0] * Tbc.inverse() * odo[i] * Tbc;
+    EXPECT_TRUE(back.isApprox(cams[i], 1e-9)) << i;
+  }
+  // Noise: the RMS error of the frame steps' translations, relative to the step.
+  const auto stepRatio = [&](const std::vector<SE3>& o, size_t i, double* rel_err) {
+    const Eigen::Vector3d t_true = (odo[i - 1].inverse() * odo[i]).translation();
+    const Eigen::Vector3d t = (o[i - 1].inverse() * o[i]).translation();
+    if (rel_err) *rel_err = (t - t_true).norm() / t_true.norm();
+    return t.norm() / t_true.norm();
+  };
+  SynthOdometry noisy;  // the defaults: 2 % noise
+  const auto on = synthOdometry(cams, noisy, 1, 30);
+  double sq = 0;
+  int n = 0;
+  for (size_t i = 1; i < cams.size(); ++i) {
+    if ((odo[i - 1].inverse() * odo[i]).translation().norm() < 1e-4) continue;
+    double e = 0;
+    stepRatio(on, i, &e);
+    sq += e * e;
+    ++n;
+  }
+  ASSERT_GT(n, 500);
+  EXPECT_NEAR(std::sqrt(sq / n), 0.02, 0.002);
+  EXPECT_FALSE(on.back().isApprox(odo.back(), 1e-3)) << "noise must accumulate";
+  SynthOdometry biased = exact;
+  biased.bias = 0.05;
+  const auto ob = synthOdometry(cams, biased, 1, 30);
+  for (size_t i = 1; i < cams.size(); i += 50) EXPECT_NEAR(stepRatio(ob, i, nullptr), 1.05, 1e-9) << i;
+  SynthOdometry slipping = exact;
+  slipping.slip = 0.1;
+  slipping.slip_gain = 0.5;
+  const auto os = synthOdometry(cams, slipping, 1, 30);
+  // Slip in episodes of 0.5 s (15 steps): 10 % of the steps in all.
+  int slips = 0, episodes = 0;
+  bool prev = false;
+  for (size_t i = 1; i < cams.size(); ++i) {
+    const double r = stepRatio(os, i, nullptr);
+    EXPECT_TRUE(std::abs(r - 1) < 1e-9 || std::abs(r - 1.5) < 1e-9) << r;
+    const bool slip = std::abs(r - 1.5) < 1e-9;
+    slips += slip;
+    episodes += slip && !prev;
+    prev = slip;
+  }
+  EXPECT_NEAR(slips / 600.0, 0.1, 0.05);
+  EXPECT_GE(episodes, 1);
+  EXPECT_LE(episodes, slips / 15 + 1) << "slip comes in episodes of 15 steps";
+  SynthOdometry bad;
+  bad.noise = -1;
+  EXPECT_THROW(synthOdometry(cams, bad, 1, 30), Error);
 }
 
 TEST(Synth, DistortedImagesMatchTheIdealCameraThroughUnproject) {
@@ -428,6 +510,13 @@ TEST(SynthCli, WritesASequenceAndRejectsBadInput) {
   ASSERT_EQ(ok.exit_code, 0) << ok.output;
   EXPECT_TRUE(fs::exists(tmp / "seq" / "rgb" / "0.100000.png"));
   EXPECT_TRUE(fs::exists(tmp / "seq" / "camera.yaml"));
+  EXPECT_TRUE(fs::exists(tmp / "seq" / "odometry.txt"));
+  ok = test::runCli(
+      "synth --scene plane --trajectory forward --frames 3 --size 80x60 --textures procedural "
+      "--no-odometry --out '" +
+      (tmp / "seq2").string() + "'");
+  ASSERT_EQ(ok.exit_code, 0) << ok.output;
+  EXPECT_FALSE(fs::exists(tmp / "seq2" / "odometry.txt"));
 
   auto r = test::runCli("synth --scene kitchen --frames 3 --out '" + (tmp / "a").string() + "'");
   EXPECT_EQ(r.exit_code, 1);
@@ -443,6 +532,9 @@ TEST(SynthCli, WritesASequenceAndRejectsBadInput) {
   r = test::runCli("synth --frames 0 --out '" + (tmp / "a").string() + "'");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("frames"), std::string::npos) << r.output;
+  r = test::runCli("synth --frames 3 --odometry-noise -0.1 --out '" + (tmp / "a").string() + "'");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("odometry noise must be in [0, 1]"), std::string::npos) << r.output;
   r = test::runCli("synth --distortion 0.1,x,0,0 --frames 3 --out '" + (tmp / "a").string() + "'");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_FALSE(fs::exists(tmp / "a")) << "bad input must not leave output behind";

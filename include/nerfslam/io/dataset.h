@@ -32,6 +32,9 @@
 //   middlebury  *_par.txt (x ~ K[R|t]X); only views whose image is present
 //   strecha     images/ + gt_dense_cameras/*.camera (R is camera-to-world, C the centre)
 //   tsukuba     New Tsukuba: images/, cam_traj_truth.txt (cm, S*M*S rotation), intrinsics.txt
+//   video       a video file (OpenCV VideoCapture, FFmpeg: mp4, avi, mkv, ...), timestamps from the
+//               container; the camera from the override; the file is decoded once at open (frame
+//               count, stamps, every frame's size) and sequentially by load()
 // Views without capture times (transforms without "timestamp", middlebury, strecha) get
 // index / 30 s (or index / DatasetOptions::fps).
 #include <cstddef>
@@ -67,7 +70,7 @@ class Dataset {
  public:
   virtual ~Dataset();
 
-  // "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba".
+  // "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba", "video".
   virtual std::string kind() const = 0;
   // The dataset root as given to openDataset.
   virtual const std::filesystem::path& root() const = 0;
@@ -108,7 +111,7 @@ struct DatasetOptions {
   std::string camera_option = "--camera";
 };
 
-// All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba.
+// All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba video.
 const std::vector<std::string>& datasetKinds();
 
 // "[kind:]PATH" split into its parts; `kind` is empty when the spec names none (then the layout

@@ -73,10 +73,19 @@ struct BaProblem {
     Eigen::Vector2d uv = Eigen::Vector2d::Zero();  // ideal pinhole pixel
     double sigma = 1.0;                            // pixel standard deviation (pyramid scale)
   };
+  // A measured translation of camera j in camera i's frame (e.g. wheel odometry, mapping/odometry.h):
+  // residual (R_cam_i_world (c_j - c_i) - t_ij) / sigma (3), under a Huber loss of width `huber`.
+  struct RelativeTranslation {
+    int camera_i = 0, camera_j = 0;
+    Eigen::Vector3d t_ij = Eigen::Vector3d::Zero();
+    double sigma = 1.0;
+    double huber = 2.0;
+  };
   double fx = 1, fy = 1, cx = 0, cy = 0;  // pinhole intrinsics of the ideal camera
   std::vector<Camera> cameras;
   std::vector<Point> points;
   std::vector<Observation> observations;
+  std::vector<RelativeTranslation> relative_translations;
 };
 
 struct BaResult {
@@ -88,6 +97,10 @@ struct BaResult {
   std::vector<bool> inlier;  // per observation
   double time_ms = 0;
 };
+
+// The relative-translation residual bundleAdjust uses: parameter blocks (pose i, pose j as above),
+// residual (3) as BaProblem::RelativeTranslation says.
+std::unique_ptr<ceres::CostFunction> makeRelativeTranslationCost(const Eigen::Vector3d& t_ij, double sigma);
 
 // Optimises `problem` in place (non-fixed cameras and points). Throws nerfslam::Error on indices out
 // of range. A problem without free parameters or observations returns immediately.

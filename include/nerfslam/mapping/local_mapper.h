@@ -10,15 +10,18 @@
 //      observations removed;
 //   5. cull redundant keyframes (90% of their points seen by >= 3 other keyframes).
 // Works on copies of the map and publishes each step with one Map call.
+#include <atomic>
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "nerfslam/core/options.h"
 #include "nerfslam/mapping/bundle_adjustment.h"
 #include "nerfslam/mapping/map.h"
+#include "nerfslam/mapping/odometry.h"
 #include "nerfslam/mapping/triangulation.h"
 
 namespace nerfslam {
@@ -100,6 +103,19 @@ class LocalMapper {
 
   const MappingOptions& options() const { return opt_; }
 
+  // Wheel odometry (mapping/odometry.h). While active (the map has the odometry's metric scale, set
+  // by the system) and OdometryOptions::constrain_ba, every bundle adjustment holds the relative
+  // translations of keyframes consecutive in time (at most max_pair_gap_s apart, at least one of
+  // them free) to the odometry's. Set before the thread starts; activate from any thread while the
+  // mapping thread is held.
+  void setOdometry(std::shared_ptr<const OdometryTrack> odometry) { odometry_ = std::move(odometry); }
+  void setOdometryActive(bool on) { odometry_active_.store(on, std::memory_order_release); }
+  bool odometryActive() const { return odometry_active_.load(std::memory_order_acquire); }
+  // Odometry residuals in the last bundle adjustment.
+  int lastOdometryConstraints() const { return last_odometry_constraints_; }
+  // Pairs left out of bundle adjustments so far by OdometryOptions::gate_ratio (mapping thread only).
+  int64_t odometryGated() const { return odometry_gated_; }
+
  private:
   BaResult runBa(const std::vector<KeyframeId>& free_kfs, const std::vector<KeyframeId>& fixed_kfs,
                  const std::vector<PointId>& points, const BundleAdjustmentOptions& ba);
@@ -107,6 +123,10 @@ class LocalMapper {
   Map& map_;
   MappingOptions opt_;
   std::deque<std::pair<PointId, KeyframeId>> recent_;  // (point, keyframe it was created at)
+  std::shared_ptr<const OdometryTrack> odometry_;
+  std::atomic<bool> odometry_active_{false};
+  int last_odometry_constraints_ = 0;
+  int64_t odometry_gated_ = 0;
 };
 
 }  // namespace nerfslam

@@ -33,6 +33,7 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
 #include "nerfslam/mapping/observation_map.h"
+#include "nerfslam/mapping/odometry.h"
 #include "nerfslam/tracking/frame.h"
 #include "nerfslam/tracking/keyframe_vote.h"
 #include "nerfslam/tracking/local_map.h"
@@ -141,6 +142,8 @@ class Map {
   std::optional<MapPoint> point(PointId id) const;
   std::vector<Keyframe> keyframes() const;      // ordered by id
   std::vector<KeyframeId> keyframeIds() const;  // ordered by id
+  // Every keyframe's timestamp and pose, ordered by id (no features or associations copied).
+  std::vector<TimedPose> keyframePoses() const;
   std::vector<MapPoint> points() const;
   std::vector<MapPoint> points(const std::vector<PointId>& ids) const;  // unknown ids skipped
   // What a dense map needs of points, without copying descriptors and observations: for each id

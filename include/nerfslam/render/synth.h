@@ -8,6 +8,9 @@
 //   rgb.txt, depth.txt           "timestamp filename" (TUM)
 //   groundtruth.txt              "timestamp tx ty tz qx qy qz qw", T_world_cam, OpenCV optical axes
 //   camera.yaml                  the output camera (saveCameraYaml), including any distortion
+//   odometry.txt                 "timestamp tx ty tz qx qy qz qw", T_odom_base: simulated wheel odometry
+//                                of a base frame rigidly under the camera (T_base_cam, SynthOdometry),
+//                                odom = the base at frame 0; exact when its noise, bias and slip are 0
 //   transforms.json              instant-ngp: fl_x fl_y cx cy (pixel corners at 0, i.e. OpenCV cx +
 //                                0.5) w h k1 k2 p1 p2, aabb_scale, scale, offset, and per frame
 //                                file_path, depth_path and transform_matrix = T_world_cam * diag(1,-1,-1,1)
@@ -41,6 +44,28 @@
 
 namespace nerfslam {
 
+// Simulated wheel odometry (odometry.txt). The base is rigidly attached to the camera by T_base_cam
+// (the camera's pose in the base frame: base x forward, y left, z up; by default the camera looks
+// along the base's x axis, 0.5 m above and 0.1 m ahead of its origin). Each frame-to-frame motion of
+// the base (t, R) is reported as
+//   t' = (1 + bias) (slip ? 1 + slip_gain : 1) t + noise |t| n,   R' = R exp(rot_noise angle(R) m)
+// (slip: in episodes of slip_seconds, a fraction `slip` of the steps in all)
+// with n, m normal 3-vectors of covariance I/3 (so the RMS error of a step is noise x its length),
+// and integrated from the identity at frame 0.
+struct SynthOdometry {
+  bool enabled = true;
+  SE3 T_base_cam = defaultBaseToCamera();
+  double noise = 0.02;        // RMS of each step's translation error, as a fraction of the step
+  double rot_noise = 0.02;    // RMS of each step's rotation error, as a fraction of the step's angle
+  double bias = 0.0;          // scale error of every translation (0.01: reports 1 % more)
+  double slip = 0.0;          // fraction of the frame steps that slip, in episodes of slip_seconds
+  double slip_seconds = 0.5;  // length of a slip episode
+  double slip_gain = 0.5;     // a slipping step reports (1 + slip_gain) x its translation
+
+  static SE3 defaultBaseToCamera();
+  void validate() const;
+};
+
 struct SynthOptions {
   std::string scene = "room";
   std::string trajectory;  // empty: defaultTrajectory(scene)
@@ -67,6 +92,7 @@ struct SynthOptions {
   double shot_noise = 0.0;   // variance per gray level
   int index_every = 30;
   int queue_size = 8;
+  SynthOdometry odometry;
 
   // Throws nerfslam::Error for invalid values (sizes outside 1..8192, frames < 1, fps <= 0, ...).
   void validate() const;
@@ -99,6 +125,11 @@ class SequenceRenderer {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// The odometry SynthOdometry describes for a camera trajectory at `fps` frames/s: T_odom_base per
+// frame (the first is the identity), deterministic from `seed`.
+std::vector<SE3> synthOdometry(const std::vector<SE3>& T_world_cam, const SynthOdometry& odometry, uint64_t seed,
+                               double fps);
 
 // 16-bit TUM depth (metres x 5000, rounded; 0 for no depth or beyond 65535 / 5000 m).
 cv::Mat depthToTum16(const cv::Mat& depth_m);

@@ -39,6 +39,10 @@ struct RunOptions {
   MapMode map_mode = MapMode::kSlam;
   std::optional<std::filesystem::path> save_map;
   bool save_default_map = true;
+  // Wheel odometry (mapping/odometry.h): a TUM file of T_odom_base, the extrinsic from
+  // SystemOptions::odometry.T_base_cam. The map gets a metric scale once enough motion is seen; the
+  // report adds scale_source, odometry (the scale over time) and the ATE under SE(3) alignment.
+  std::optional<std::filesystem::path> odometry;
 };
 
 struct RunResult {

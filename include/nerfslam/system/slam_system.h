@@ -29,6 +29,7 @@
 #include "nerfslam/io/trajectory.h"
 #include "nerfslam/mapping/map.h"
 #include "nerfslam/mapping/mapping_thread.h"
+#include "nerfslam/mapping/odometry.h"
 #include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam/tracking/frame.h"
 #include "nerfslam/tracking/options.h"
@@ -58,12 +59,14 @@ struct SystemOptions {
   int frame_queue = 2;                   // frames between the reader and the tracking thread
   bool lockstep = true;                  // offline runs: the reader waits for tracking and mapping per frame
   NerfMappingOptions nerf;               // the NeRF mapping thread
+  OdometryOptions odometry;              // wheel odometry, when given (SlamSystem::setOdometry)
 
   template <class V>
   void visit(V& v) {
     v("tracking", tracking, "Tracking front end");
     v("mapping", mapping, "Mapping back end");
     v("nerf", nerf, "NeRF mapping thread (dense map)");
+    v("odometry", odometry, "Wheel odometry (run --odometry): metric scale and the base-to-camera extrinsic");
     v("local_map_keyframes", local_map_keyframes, "Covisible keyframes forming the local map tracked against",
       check::range(1, 1000));
     v("keyframe_queue", keyframe_queue, "Keyframes queued for mapping before new ones are dropped",
@@ -122,6 +125,19 @@ struct FrameRecord {
   std::string message;
 };
 
+// The map's scale from odometry over time (SlamSystem::scaleHistory), one sample per new keyframe
+// once the map exists: before the scale is applied the estimate over every keyframe pair, after it
+// over the last kRecentScalePairs pairs (1 while the map keeps the odometry's scale).
+struct ScaleSample {
+  uint64_t frame = 0;
+  double timestamp = 0;
+  int keyframes = 0;
+  ScaleEstimate estimate;      // metres per map unit of the map at that time
+  double applied_scale = 1.0;  // product of the scales applied to the map so far
+  bool applied = false;        // the scale was applied at this sample
+};
+constexpr int kRecentScalePairs = 20;
+
 class SlamSystem {
  public:
   SlamSystem(const Camera& camera, SystemOptions options);
@@ -174,6 +190,16 @@ class SlamSystem {
   // Index of the first frame relocalised in the loaded map (-1: not yet, or no loaded map).
   int64_t relocalizedAtFrame() const { return relocalized_at_frame_; }
 
+  // Wheel odometry (mapping/odometry.h), before the first frame; not with a loaded map. At the first
+  // frame after a new keyframe the map's scale is estimated (estimateScale); once valid it is applied
+  // to the map (Map::transform), the tracker and the frames' poses, with the mapping thread held,
+  // and bundle adjustment keeps it (LocalMapper::setOdometryActive). A reset starts over.
+  void setOdometry(std::shared_ptr<const OdometryTrack> odometry);
+  const OdometryTrack* odometry() const { return odometry_.get(); }
+  bool metricScale() const { return metric_scale_; }
+  int64_t scaleAppliedAtFrame() const { return scale_applied_at_frame_; }
+  const std::vector<ScaleSample>& scaleHistory() const { return scale_history_; }
+
  private:
   // The mapping thread's result for a new map (initialize()), handed back through init_handoff_.
   struct InitHandoff {
@@ -207,6 +233,9 @@ class SlamSystem {
                         FrameRecord& rec);
   WeakTrackingPolicy weakTrackingPolicy() const;
   void reset();
+  // At a new keyframe: the odometry's scale estimate, applied once valid (setOdometry).
+  void updateOdometryScale(uint64_t index, double timestamp);
+  void applyScale(double s);
   // `wait` = false: never waits for the map lock (the local map may then stay as it was).
   void buildLocalMap(KeyframeId ref, bool wait = true);
 
@@ -242,6 +271,12 @@ class SlamSystem {
   std::atomic<bool> localization_only_{false};
   MapMode map_mode_ = MapMode::kSlam;  // kLocalize / kExtend: started from a loaded map
   int64_t relocalized_at_frame_ = -1;
+  std::shared_ptr<const OdometryTrack> odometry_;
+  bool metric_scale_ = false;
+  double applied_scale_ = 1.0;
+  int64_t scale_applied_at_frame_ = -1;
+  KeyframeId scale_checked_keyframe_ = -1;
+  std::vector<ScaleSample> scale_history_;
 };
 
 }  // namespace nerfslam

@@ -99,6 +99,9 @@ class Tracker {
   // correction of the last pose). Velocity is zeroed unless `T_world_prev` is given.
   void setPose(const SE3& T_world_cam, const SE3* T_world_prev = nullptr);
   SE3 predictedPose() const;
+  // The map was scaled by `s` about the world origin (e.g. a metric scale from odometry): the last
+  // pose's centre and the motion model's translation are scaled with it.
+  void scaleMotion(double s);
   // The last pose set by setPose/track (identity before any).
   const SE3& lastPose() const { return last_; }
   bool hasPose() const { return has_pose_; }
