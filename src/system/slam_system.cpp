@@ -490,9 +490,13 @@ void SlamSystem::finish(bool global_ba, const std::function<bool()>& stop_global
   map_->flushTrackingStatistics();  // statistics queued while the mapping thread held the map
   if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0 &&
       map_mode_ != MapMode::kLocalize) {
+    spdlog::info("global BA: started on {} keyframes and {} points", map_->numKeyframes(), map_->numPoints());
     const BaResult r = mapping_->mapper().globalBundleAdjustment(opt_.mapping.global_ba_iterations, stop_global_ba);
-    spdlog::info("global BA: {} keyframes, {} points, rmse {:.2f} -> {:.2f} px, {} outliers, {:.0f} ms",
-                 map_->numKeyframes(), map_->numPoints(), r.initial_rmse_px, r.final_rmse_px, r.outliers, r.time_ms);
+    const bool stopped = stop_global_ba && stop_global_ba();
+    spdlog::info(
+        "global BA: {} keyframes, {} points, rmse {:.2f} -> {:.2f} px, {} outliers, {} iterations, {:.0f} ms{}",
+        map_->numKeyframes(), map_->numPoints(), r.initial_rmse_px, r.final_rmse_px, r.outliers, r.iterations,
+        r.time_ms, stopped ? " (stopped early by a second signal)" : "");
   }
   if (nerf_) nerf_->stop();  // takes the last keyframes and the globally adjusted poses
 }

@@ -175,6 +175,37 @@ TEST(RunStop, SignalsDuringTheFinalNerfTrainingShortenThenSkipIt) {
   ASSERT_EQ(loc.exit_code, 0) << loc.output;
 }
 
+// Two signals as the global BA starts (on these 30 frames it takes about 60 ms, so whether they
+// land inside it is a race: BundleAdjustment.StopRequestEndsTheSolveAfterTheIterationInHand tests
+// that a stop ends a solve): the run exits 130 with a trajectory that evaluates and a map that loads.
+TEST(RunStop, SignalsAtTheGlobalBundleAdjustmentLeaveATrajectoryAndAMap) {
+  NERFSLAM_REQUIRE_DATA(data, "kitti06_first51");
+  test::TempDir out;
+  test::writeText(out / "config.yaml", "mapping:\n  global_ba_iterations: 1000\n  ba: {function_tolerance: 1.0e-15}\n");
+  Child run("run --no-nerf --dataset kitti:" + data.string() + " --max-frames 30 --config " +
+                (out / "config.yaml").string() + " --out " + (out / "run").string(),
+            out / "log.txt");
+  ASSERT_TRUE(Child::waitFor([&] { return run.output().find("global BA: started") != std::string::npos; }, 300))
+      << run.output();
+  const auto t0 = Clock::now();
+  run.signal(SIGINT);
+  run.signal(SIGINT);
+  ASSERT_EQ(run.wait(120), 130) << run.output();
+  const double after = std::chrono::duration<double>(Clock::now() - t0).count();
+  std::printf(
+      "exited %.2f s after the signals; the BA %s\n", after,
+      run.output().find("(stopped early by a second signal)") != std::string::npos ? "stopped early" : "had finished");
+  EXPECT_LT(after, 20.0) << run.output();
+  const auto rep = report(out / "run");
+  ASSERT_TRUE(rep.is_object()) << run.output();
+  EXPECT_TRUE(rep.at("interrupted").get<bool>());
+  EXPECT_EQ(evaluates(data, out / "run"), 30);
+  test::TempDir again;
+  const auto loc = test::runCli("run --no-nerf --dataset kitti:" + data.string() + " --max-frames 6 --map " +
+                                (out / "run" / "map").string() + " --localize --out " + again.path().string());
+  ASSERT_EQ(loc.exit_code, 0) << loc.output;
+}
+
 // A third signal exits at once, and SIGKILL cannot be caught: either way the checkpoint written while
 // tracking ran is a trajectory that evaluates.
 TEST(RunStop, ThirdSignalAndSigkillLeaveTheCheckpointedTrajectory) {
