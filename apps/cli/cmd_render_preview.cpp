@@ -70,6 +70,18 @@ nerfslam::SE3 gridFrame(const std::filesystem::path& yaml, std::string* units) {
 
 const char* kPalette[] = {"red", "green", "blue", "yellow", "magenta", "cyan", "orange", "white"};
 
+// --trajectory FILE[:COLOUR] (the i-th): the file and its colour (the palette's i-th without one; a
+// file whose own name has a colon is taken whole when it exists).
+std::pair<std::string, std::string> trajectoryArgument(const std::string& arg, size_t i) {
+  std::string file = arg, color = kPalette[i % 8];
+  const auto colon = file.rfind(':');
+  if (colon != std::string::npos && colon + 1 < file.size() && !std::filesystem::exists(file)) {
+    color = file.substr(colon + 1);
+    file = file.substr(0, colon);
+  }
+  return {file, color};
+}
+
 nerfslam::cli::Registrar reg(
     "render-preview", "Draw point clouds, trajectories and keyframes to a PNG (headless, OSMesa)",
     [](CLI::App& sub) -> nerfslam::cli::Runner {
@@ -97,13 +109,7 @@ nerfslam::cli::Registrar reg(
           const SE3 T_map_grid = gridFrame(a->grid, &units);
           std::vector<GridTrajectory> trs;
           for (size_t i = 0; i < a->trajectories.size(); ++i) {
-            std::string file = a->trajectories[i];
-            std::string color = kPalette[i % 8];
-            const auto colon = file.rfind(':');
-            if (colon != std::string::npos && colon + 1 < file.size() && !std::filesystem::exists(file)) {
-              color = file.substr(colon + 1);
-              file = file.substr(0, colon);
-            }
+            const auto [file, color] = trajectoryArgument(a->trajectories[i], i);
             GridTrajectory t;
             t.color = parseColor(color);
             for (const auto& e : readTrajectory(file)) t.positions.push_back(e.pose.translation());
@@ -142,13 +148,7 @@ nerfslam::cli::Registrar reg(
           scene.clouds.push_back(loadPointCloudPly(p));
         }
         for (size_t i = 0; i < a->trajectories.size(); ++i) {
-          std::string file = a->trajectories[i];
-          std::string color = kPalette[i % 8];
-          const auto colon = file.rfind(':');
-          if (colon != std::string::npos && colon + 1 < file.size() && !std::filesystem::exists(file)) {
-            color = file.substr(colon + 1);
-            file = file.substr(0, colon);
-          }
+          const auto [file, color] = trajectoryArgument(a->trajectories[i], i);
           PreviewTrajectory t;
           t.color = parseColor(color);
           t.label = std::filesystem::path(file).filename().string();
