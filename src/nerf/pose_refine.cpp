@@ -42,20 +42,17 @@ void PoseOptimizer::step(size_t view, PoseCorrection& c, const double grad[6], d
                          double reg) {
   if (view >= state_.size()) state_.resize(view + 1);
   State& s = state_[view];
-  ++s.t;
-  const double b1 = adam_.beta1, b2 = adam_.beta2;
-  const double c1 = 1.0 - std::pow(b1, double(s.t)), c2 = 1.0 - std::pow(b2, double(s.t));
+  // The translation is learnt in radian-like units (t / translation_scale), so one learning rate
+  // moves both by a similar share of the image.
+  float p[6], g[6];
   for (int k = 0; k < 6; ++k) {
-    double& p = k < 3 ? c.rotation[k] : c.translation[k - 3];
-    // The translation is learnt in radian-like units (t / translation_scale), so one learning rate
-    // moves both by a similar share of the image.
     const double unit = k < 3 ? 1.0 : translation_scale;
-    const double g = grad[k] * unit + 2.0 * reg * p / unit;
-    s.m[size_t(k)] = b1 * s.m[size_t(k)] + (1 - b1) * g;
-    s.v[size_t(k)] = b2 * s.v[size_t(k)] + (1 - b2) * g * g;
-    const double step = lr * (s.m[size_t(k)] / c1) / (std::sqrt(s.v[size_t(k)] / c2) + 1e-12);
-    p -= step * unit;
+    p[k] = float((k < 3 ? c.rotation[k] : c.translation[k - 3]) / unit);
+    g[k] = float(grad[k] * unit + 2.0 * reg * p[k]);
   }
+  adamEntry<6>(p, s.m.data(), s.v.data(), g, &s.t, float(lr), adam_, bias_);
+  for (int k = 0; k < 6; ++k)
+    (k < 3 ? c.rotation[k] : c.translation[k - 3]) = double(p[k]) * (k < 3 ? 1.0 : translation_scale);
 }
 
 void PoseOptimizer::reset(size_t view) {

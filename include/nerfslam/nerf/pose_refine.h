@@ -41,11 +41,11 @@ void barfLevelWeights(int n_levels, double progress, float* weights);
 void accumulatePoseGradient(const Eigen::Vector3f& origin, const float* pos, const float* dL_dpos, int count,
                             double scene_scale, double grad[6]);
 
-// Adam over each view's six correction parameters (the field's Adam constants), with an L2 pull
-// towards no correction.
+// Adam over each view's six correction parameters (adam.h's adamEntry with the field's Adam
+// constants), with an L2 pull towards no correction.
 class PoseOptimizer {
  public:
-  explicit PoseOptimizer(const AdamOptions& adam) : adam_(adam) {}
+  explicit PoseOptimizer(const AdamOptions& adam) : adam_(adam), bias_(adam) {}
   // One update of `c` from grad[0..6) (mean per ray) plus reg * 2 * params; the rotation's learning
   // rate is lr, the translation's lr * translation_scale (world units per radian).
   void step(size_t view, PoseCorrection& c, const double grad[6], double lr, double translation_scale, double reg);
@@ -53,10 +53,11 @@ class PoseOptimizer {
 
  private:
   struct State {
-    std::array<double, 6> m{}, v{};
+    std::array<float, 6> m{}, v{};
     uint32_t t = 0;
   };
   AdamOptions adam_;
+  AdamBiasTable bias_;
   std::vector<State> state_;
 };
 
