@@ -108,6 +108,8 @@ struct RadianceField::Workspace::Impl {
   std::vector<uint32_t> need;
   std::vector<float> need_geo, need_dir, need_rgb;
   std::vector<uint32_t> live;  // samples with a non-zero loss gradient
+  // backward() with dL_dpos: one tile's level-weighted d_enc and position gradients.
+  std::vector<float> pos_denc, pos_grad;
 };
 
 // The hash-grid part of the gradient is deferred: backward() records each sample's position and
@@ -254,21 +256,21 @@ static void colorTile(const RadianceField::Impl& f, size_t m, const float* cin, 
 // Inference.
 
 // dL/dpos of a backward tile's samples (positions pos, m*3; d_enc sample-major [m][E]), levels
-// weighted, written to dL_dpos[3 * idx[i]].
-static void positionGradientTile(const RadianceField::Impl& f, size_t m, const float* pos, const float* d_enc,
-                                 const float* level_weights, const uint32_t* idx, float* dL_dpos) {
+// weighted, written to dL_dpos[3 * idx[i]]; scratch from the workspace.
+static void positionGradientTile(const RadianceField::Impl& f, RadianceField::Workspace::Impl& ws, size_t m,
+                                 const float* pos, const float* d_enc, const float* level_weights, const uint32_t* idx,
+                                 float* dL_dpos) {
   const size_t E = size_t(f.n_enc);
-  std::vector<float> weighted;
   if (level_weights) {
-    weighted.assign(d_enc, d_enc + m * E);
+    ws.pos_denc.assign(d_enc, d_enc + m * E);
     for (size_t i = 0; i < m; ++i)
-      for (size_t k = 0; k < E; ++k) weighted[i * E + k] *= level_weights[k / 2];
-    d_enc = weighted.data();
+      for (size_t k = 0; k < E; ++k) ws.pos_denc[i * E + k] *= level_weights[k / 2];
+    d_enc = ws.pos_denc.data();
   }
-  std::vector<float> out(3 * m);
-  hashEncodePositionGradient(f.grid(), pos, m, d_enc, out.data());
+  ws.pos_grad.resize(3 * m);
+  hashEncodePositionGradient(f.grid(), pos, m, d_enc, ws.pos_grad.data());
   for (size_t i = 0; i < m; ++i)
-    for (size_t d = 0; d < 3; ++d) dL_dpos[3 * size_t(idx[i]) + d] = out[3 * i + d];
+    for (size_t d = 0; d < 3; ++d) dL_dpos[3 * size_t(idx[i]) + d] = ws.pos_grad[3 * i + d];
 }
 
 void RadianceField::queryDensity(const float* pos, size_t n, float* sigma) const {
@@ -539,7 +541,7 @@ void RadianceField::backward(Workspace& wsp, const float* dL_dsigma, const float
     gemm(mm(E, H, m, encT, kTile, 1, ws.dh1.data(), H, gw + f.off_d0, H, Epilogue::kNone, nullptr, 0, true));
     gemm(mm(m, E, H, ws.dh1.data(), H, 1, f.WT(f.off_d0), E, ws.denc.data(), E));
     if (dL_dpos)
-      positionGradientTile(f, m, g.pos.data() + 3 * (seg0 + j0), ws.denc.data(), level_weights, idx, dL_dpos);
+      positionGradientTile(f, ws, m, g.pos.data() + 3 * (seg0 + j0), ws.denc.data(), level_weights, idx, dL_dpos);
     // Keep d_enc level-major for the optimiser's per-level scatter.
     for (size_t l = 0; l < E / 2; ++l) {
       float* dst = seg_denc + l * 2 * nl + 2 * j0;
