@@ -45,20 +45,17 @@ OdometryTrack::OdometryTrack(Trajectory T_odom_base, const SE3& T_base_cam, std:
     if (!std::isfinite(s.timestamp) || !s.pose.translation().allFinite() || !s.pose.rotation().coeffs().allFinite())
       fail("{}: odometry sample {} (timestamp {}) is not finite", source_, i + 1, numberForMessage(s.timestamp));
     if (i > 0 && !(s.timestamp > samples_[i - 1].timestamp))
-      fail("{}: odometry sample {}: timestamp {} does not increase (the previous sample's is {}): stamps going back",
-           source_, i + 1, numberForMessage(s.timestamp, 9), numberForMessage(samples_[i - 1].timestamp, 9));
+      fail(
+          "{}: field 'timestamp' of odometry sample {}: {} does not increase (the previous sample's is {}): stamps "
+          "going back",
+          source_, i + 1, numberForMessage(s.timestamp, 9), numberForMessage(samples_[i - 1].timestamp, 9));
   }
 }
 
 OdometryTrack OdometryTrack::load(const std::filesystem::path& path, const OdometryOptions& options) {
-  Trajectory t = readTumTrajectory(path);  // names the file and line for NaNs, bad quaternions, columns
-  // Stamps going back: named by the sample's number (readTumTrajectory keeps no line numbers).
-  for (size_t i = 1; i < t.size(); ++i)
-    if (!(t[i].timestamp > t[i - 1].timestamp))
-      fail(
-          "{}: field 'timestamp' of odometry sample {}: {} does not increase (the previous sample's is {}): "
-          "stamps going back",
-          path.string(), i + 1, numberForMessage(t[i].timestamp, 9), numberForMessage(t[i - 1].timestamp, 9));
+  // readTumTrajectory names the file and line for NaNs, bad quaternions and columns; the constructor
+  // names stamps going back by the sample's number (readTumTrajectory keeps no line numbers).
+  Trajectory t = readTumTrajectory(path);
   return OdometryTrack(std::move(t), rigidTransformFromRowMajor(options.T_base_cam), path.string(), options);
 }
 

@@ -67,7 +67,7 @@ TEST(Odometry, InterpolatesWithinSamplesAndNotAcrossGaps) {
   Trajectory back = tr;
   back[5].timestamp = back[3].timestamp;
   const std::string e = test::errorOf([&] { OdometryTrack(back, SE3(), "odo.txt", o); });
-  EXPECT_NE(e.find("odo.txt: odometry sample 6"), std::string::npos) << e;
+  EXPECT_NE(e.find("odo.txt: field 'timestamp' of odometry sample 6"), std::string::npos) << e;
   EXPECT_NE(e.find("stamps going back"), std::string::npos) << e;
   EXPECT_NE(test::errorOf([&] { OdometryTrack({tr[0]}, SE3(), "one.txt", o); }).find("at least 2"), std::string::npos);
 }
