@@ -140,29 +140,44 @@ uint8_t VoxelMap::stateAt(const Eigen::Vector3d& p) const {
 
 size_t VoxelMap::count(State s) const { return size_t(std::count(state.begin(), state.end(), uint8_t(s))); }
 
+namespace {
+struct MapSize {
+  Eigen::Vector3d lo, n;
+  double voxels = 0, bytes = 0;
+  bool fits = false;
+};
+MapSize mapSize(const Eigen::AlignedBox3d& bounds, const VoxelMapOptions& o) {
+  if (bounds.isEmpty() || !bounds.min().allFinite() || !bounds.max().allFinite())
+    fail("occupancy: the region to map is empty");
+  MapSize s;
+  s.lo = (bounds.min() / o.resolution).array().floor();
+  const Eigen::Vector3d hi = (bounds.max() / o.resolution).array().ceil();
+  s.n = (hi - s.lo).cwiseMax(1.0);
+  s.voxels = s.n.x() * s.n.y() * s.n.z();
+  s.bytes = s.voxels * bytesPerVoxel(o.threads);
+  s.fits = s.bytes <= o.max_memory_mb * 1e6 && s.n.maxCoeff() < 65536;
+  return s;
+}
+}  // namespace
+
 size_t voxelMapBytes(const Eigen::AlignedBox3d& bounds, const VoxelMapOptions& o, Eigen::Vector3i* dims_out,
                      Eigen::Vector3i* origin_out) {
   validate(o);
-  if (bounds.isEmpty() || !bounds.min().allFinite() || !bounds.max().allFinite())
-    fail("occupancy: the region to map is empty");
-  const Eigen::Vector3d lo = (bounds.min() / o.resolution).array().floor();
-  const Eigen::Vector3d hi = (bounds.max() / o.resolution).array().ceil();
-  const Eigen::Vector3d n = (hi - lo).cwiseMax(1.0);
-  const double voxels = n.x() * n.y() * n.z();
-  const double bytes = voxels * bytesPerVoxel(o.threads);
-  const double limit = o.max_memory_mb * 1e6;
-  if (!(bytes <= limit) || !(n.maxCoeff() < 65536))
+  const MapSize s = mapSize(bounds, o);
+  const Eigen::Vector3d& n = s.n;
+  if (!s.fits)
     fail(
         "occupancy: at resolution {} the map of {:.3g} x {:.3g} x {:.3g} units would have {:.0f} x {:.0f} x {:.0f} = "
         "{:.3g} voxels and need {:.3g} MB, more than the {} MB allowed (max_memory_mb; at most 65535 voxels a side)",
-        o.resolution, bounds.sizes().x(), bounds.sizes().y(), bounds.sizes().z(), n.x(), n.y(), n.z(), voxels,
-        bytes / 1e6, o.max_memory_mb);
-  if ((lo.array() < -kOctomapKeyOffset).any() || (hi.array() > kOctomapKeyOffset - 1).any())
+        o.resolution, bounds.sizes().x(), bounds.sizes().y(), bounds.sizes().z(), n.x(), n.y(), n.z(), s.voxels,
+        s.bytes / 1e6, o.max_memory_mb);
+  const Eigen::Vector3d hi = s.lo + n;
+  if ((s.lo.array() < -kOctomapKeyOffset).any() || (hi.array() > kOctomapKeyOffset - 1).any())
     fail("occupancy: at resolution {} the map reaches more than 32768 voxels from the origin (OctoMap's key range)",
          o.resolution);
   if (dims_out) *dims_out = n.cast<int>();
-  if (origin_out) *origin_out = lo.cast<int>();
-  return size_t(bytes);
+  if (origin_out) *origin_out = s.lo.cast<int>();
+  return size_t(s.bytes);
 }
 
 VoxelMapper::VoxelMapper(const VoxelMapOptions& options, const Eigen::AlignedBox3d& bounds) : options_(options) {
@@ -389,6 +404,19 @@ VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamer
   mapper.updateDensity(source, -1);
   mapper.carve(views);
   return mapper.map();
+}
+
+double fittingResolution(const DensitySource& source, const std::vector<PosedCamera>& views,
+                         const VoxelMapOptions& options, int max_doublings) {
+  validate(options);
+  VoxelMapOptions o = options;
+  for (int k = 0; k <= max_doublings; ++k, o.resolution *= 2) {
+    VoxelMapOptions coarse = o;
+    coarse.resolution = 4 * o.resolution;
+    if (!mapSize(voxelMapBounds(source, views, o.resolution), coarse).fits) continue;
+    if (mapSize(observedBounds(source, views, o), o).fits) return o.resolution;
+  }
+  return options.resolution;  // none fits: buildVoxelMap at the resolution asked for says how large it would be
 }
 
 void saveOctomap(const VoxelMap& map, const fs::path& path) {

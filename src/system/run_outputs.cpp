@@ -335,6 +335,13 @@ void writeOccupancyOutputs(const nerf::NerfModel& model, const Camera& cam, cons
       const auto b = nerf::voxelMapBounds(src, views, 0.0);
       vo.resolution = oo.relative_resolution * b.diagonal().norm();
     }
+    // A street mapped at a room's resolution would need gigabytes: coarsen (x2 at a time) until it
+    // fits in vo.max_memory_mb, and say so.
+    const double requested = vo.resolution;
+    vo.resolution = nerf::fittingResolution(src, views, vo);
+    if (vo.resolution != requested)
+      spdlog::warn("occupancy map: {} units per voxel would exceed {} MB for this map; written at {} ({}x coarser)",
+                   requested, vo.max_memory_mb, vo.resolution, vo.resolution / requested);
     const nerf::VoxelMap map = nerf::buildVoxelMap(src, views, vo);
     nerf::writeOctomapFiles(map, out / "occupancy.bt", metres_per_unit, "nerf/model.nerf");
     addRunOutput(rep, "occupancy.bt");
@@ -342,6 +349,7 @@ void writeOccupancyOutputs(const nerf::NerfModel& model, const Camera& cam, cons
     addRunOutput(rep, "occupancy.ot");
     addRunOutput(rep, "occupancy.meta.yaml");
     rep["occupancy"] = {{"resolution", map.resolution},
+                        {"resolution_requested", requested},
                         {"metres_per_unit", metres_per_unit > 0 ? nlohmann::json(metres_per_unit) : nlohmann::json()},
                         {"occupied", map.count(nerf::VoxelMap::kOccupied)},
                         {"free", map.count(nerf::VoxelMap::kFree)},

@@ -211,6 +211,33 @@ TEST(VoxelMap, GridFromTheBandAboveTheDetectedFloor) {
   EXPECT_NE(meta.find("height_band: [0.15, 0.8]"), std::string::npos);
 }
 
+// A run maps whatever it saw at one resolution option: a street at a room's resolution would need
+// gigabytes. fittingResolution doubles the resolution until the map fits its memory limit, and the
+// map built at it is the one built when asked for that resolution directly.
+TEST(VoxelMap, FittingResolutionCoarsensUntilTheMapFitsItsMemory) {
+  VoxelMapOptions o = smallOptions();
+  o.pixel_stride = 8;
+  EXPECT_EQ(fittingResolution(analyticSource(), ringViews(), o), o.resolution);  // fits: unchanged
+  o.resolution = 0.01;
+  o.max_memory_mb = 5;
+  ASSERT_FALSE(test::errorOf([&] { buildVoxelMap(analyticSource(), ringViews(), o); }).empty());
+  const double r = fittingResolution(analyticSource(), ringViews(), o);
+  EXPECT_GT(r, o.resolution);
+  const double k = std::log2(r / o.resolution);
+  EXPECT_NEAR(k, std::round(k), 1e-9);  // a power of two coarser
+  VoxelMapOptions fit = o;
+  fit.resolution = r;
+  const VoxelMap m = buildVoxelMap(analyticSource(), ringViews(), fit);
+  EXPECT_GT(m.count(VoxelMap::kOccupied), 0u);
+  EXPECT_LE(double(m.size()) * 41, 5e6);
+  // One step finer would not have fitted.
+  fit.resolution = r / 2;
+  EXPECT_FALSE(test::errorOf([&] { buildVoxelMap(analyticSource(), ringViews(), fit); }).empty());
+  // Nothing fits within the doublings allowed: the resolution asked for, which buildVoxelMap refuses.
+  o.max_memory_mb = 1e-3;
+  EXPECT_EQ(fittingResolution(analyticSource(), ringViews(), o, 2), o.resolution);
+}
+
 TEST(VoxelMap, BadInputIsRefusedWithoutWritingAnything) {
   const test::TempDir tmp;
   VoxelMapOptions o = smallOptions();
