@@ -286,11 +286,20 @@ void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vec
   for (size_t k : spread(view_poses.size(), eo.cloud_views)) views.push_back({cam, view_poses[k]});
   std::vector<nerf::DepthPointQuality> quality;
   const auto cloud = nerf::depthPointCloud(model, views, xo, &quality);
-  nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
-  addRunOutput(rep, "nerf_cloud.ply");
-  nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");
-  addRunOutput(rep, "nerf_cloud.pcd");
+  // A field with nothing opaque yet (a NeRF that had almost no time) is a result, not a failure of
+  // the outputs: no cloud or mesh file, and the report says why.
+  const std::string too_little =
+      fmt::format("nothing above the density threshold after {} steps", model.training_steps);
   rep["nerf_cloud_points"] = cloud.size();
+  if (cloud.empty()) {
+    rep["nerf_cloud_note"] = "not written: " + too_little;
+    spdlog::warn("NeRF cloud not written: {}", too_little);
+  } else {
+    nerf::savePointCloud(cloud, out / "nerf_cloud.ply");
+    addRunOutput(rep, "nerf_cloud.ply");
+    nerf::savePointCloud(cloud, out / "nerf_cloud.pcd");
+    addRunOutput(rep, "nerf_cloud.pcd");
+  }
   if (dense) {  // the surface: opaque, with a certain depth
     dense->label = fmt::format("NeRF surface: depth renders of {} training views", views.size());
     std::vector<double> uncertainty;
@@ -306,9 +315,14 @@ void writeCloudAndMesh(nerf::NerfModel& model, const Camera& cam, const std::vec
   xo.max_triangles = eo.mesh_max_triangles;
   nerf::MeshStats ms;
   const auto mesh = nerf::extractMesh(model, xo, &ms);
-  nerf::saveMesh(mesh, out / "mesh.ply");
-  addRunOutput(rep, "mesh.ply");
   rep["mesh_triangles"] = mesh.polygons.size();
+  if (mesh.polygons.empty()) {
+    rep["mesh_note"] = "not written: " + too_little;
+    spdlog::warn("NeRF mesh not written: {}", too_little);
+  } else {
+    nerf::saveMesh(mesh, out / "mesh.ply");
+    addRunOutput(rep, "mesh.ply");
+  }
   rep["mesh_density_threshold"] = ms.density_threshold;
   rep["mesh_triangles_at_default_threshold"] = ms.triangles_at_requested_threshold;
 }

@@ -369,20 +369,26 @@ class Checkpointer {
   Clock::duration interval_ = std::chrono::seconds(2);
 };
 
-// After the last frame: the NeRF trained for final_train_seconds more with the final poses; after a
-// stop request at most kShortenedFinalSeconds more, after a second one no more. Returns false when
-// a second request skipped or ended it.
-bool trainNerfFinal(SlamSystem& slam, const SystemOptions& sys) {
+// After the last frame: the NeRF trained for final_train_seconds more with the final poses (or
+// final_train_steps steps); after a stop request at most kShortenedFinalSeconds more, after a second
+// one no more. Returns false when a second request skipped or ended it; *done: the steps it made.
+bool trainNerfFinal(SlamSystem& slam, const SystemOptions& sys, int64_t* done) {
+  *done = 0;
   NerfMapping* n = slam.nerf();
-  if (!n || !n->hasModel() || !(sys.nerf.final_train_seconds > 0)) return true;
+  const int64_t steps = sys.nerf.final_train_steps;
+  if (!n || !n->hasModel() || !(sys.nerf.final_train_seconds > 0 || steps > 0)) return true;
   if (stopRequests() >= 2) return false;
-  double seconds = sys.nerf.final_train_seconds;
+  // By steps: no time limit of its own (1e6 s), only the stop requests'.
+  double seconds = steps > 0 ? 1e6 : sys.nerf.final_train_seconds;
   if (stopRequests() >= 1) seconds = std::min(seconds, kShortenedFinalSeconds);
-  std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n", seconds);
+  if (steps > 0 && stopRequests() == 0)
+    std::fprintf(stderr, "training the NeRF map for %lld steps more with the final poses...\n", (long long)steps);
+  else
+    std::fprintf(stderr, "training the NeRF map for %.0f s more with the final poses...\n", seconds);
   // A first request during the training leaves it kShortenedFinalSeconds from then; a second ends it.
   auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
   bool shortened = stopRequests() >= 1;
-  n->trainFor(seconds, 0, resolveThreads(sys.nerf.final_threads), [&] {
+  *done = n->trainFor(seconds, steps, resolveThreads(sys.nerf.final_threads), [&] {
     const int requests = stopRequests();
     if (requests >= 2) return true;
     if (requests >= 1 && !shortened) {
@@ -663,7 +669,8 @@ RunResult runSlam(const RunOptions& ro) {
   if (!global_ba) skipped.push_back("global_ba");
   // A second signal during the global BA ends it after the iteration in hand.
   slam.finish(global_ba, [] { return stopRequests() >= 2; });
-  if (!trainNerfFinal(slam, sys)) skipped.push_back("final_nerf_training");
+  int64_t final_steps = 0;
+  if (!trainNerfFinal(slam, sys, &final_steps)) skipped.push_back("final_nerf_training");
   NerfEvalOptions eval_options = sys.nerf.outputs;
   eval_options.model_only = stopRequests() >= 2;
   if (eval_options.model_only && slam.nerf()) skipped.push_back("nerf_renders_cloud_mesh");
@@ -674,6 +681,7 @@ RunResult runSlam(const RunOptions& ro) {
   stats.setMapping(slam.mapping().stats());
   stats.writeReport(rep, slam.nerf() != nullptr);
   addTrackingContinuity(slam.records(), rep);
+  if (slam.nerf()) rep["nerf_final_train_steps"] = final_steps;
   const std::string failure = runFailure(pipe, slam);
   if (!failure.empty()) rep["failure"] = failure;
   const bool interrupted = stopRequests() > 0;

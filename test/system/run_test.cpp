@@ -226,17 +226,35 @@ TEST(RunSystem, NerfRunLeavesASurfacePreviewAFlythroughAndATrajectoryPlot) {
   const auto blocked = dir / "blocked_run";
   std::filesystem::create_directories(blocked);
   test::writeText(blocked / "nerf", "a file where the folder goes\n");
-  test::writeText(dir / "no_final.yaml",
-                  "nerf:\n  downscale: 2.0\n  final_train_seconds: 0\n"
+  test::writeText(dir / "seven_steps.yaml",
+                  "nerf:\n  downscale: 2.0\n  final_train_seconds: 0\n  final_train_steps: 7\n"
                   "  outputs: {flythrough_frames: 0, heldout_frames: 1, keyframe_frames: 0}\n");
-  const auto b = test::runCli("run --dataset " + seq.string() + " --config " + (dir / "no_final.yaml").string() +
+  const auto b = test::runCli("run --dataset " + seq.string() + " --config " + (dir / "seven_steps.yaml").string() +
                               " --out " + blocked.string());
   EXPECT_EQ(b.exit_code, 1) << b.output;
   EXPECT_NE(b.output.find("NeRF outputs not written"), std::string::npos) << b.output;
   const auto brep = readReport(blocked);
   EXPECT_TRUE(brep.value("nerf_outputs_failed", false));
+  EXPECT_EQ(brep.value("nerf_final_train_steps", -1), 7);  // by steps, not by time
   EXPECT_TRUE(std::filesystem::exists(blocked / "trajectory.txt"));
   for (const auto& o : brep.at("outputs")) EXPECT_NE(o.get<std::string>().rfind("nerf", 0), 0u) << o;
+  // A NeRF with nothing opaque yet (untrained: a learning rate of 1e-12) is a result, not a failed
+  // output: exit 0, no cloud or mesh file, and the report says why (it used to exit 1).
+  const auto untrained = dir / "untrained_run";
+  test::writeText(dir / "untrained.yaml",
+                  "nerf:\n  downscale: 4.0\n  final_train_seconds: 0\n  train: {lr: 1.0e-12}\n"
+                  "  outputs: {flythrough_frames: 0, heldout_frames: 1, keyframe_frames: 0}\n");
+  const auto u = test::runCli("run --dataset " + seq.string() + " --config " + (dir / "untrained.yaml").string() +
+                              " --out " + untrained.string());
+  EXPECT_EQ(u.exit_code, 0) << u.output;
+  const auto urep = readReport(untrained);
+  EXPECT_EQ(urep.value("nerf_cloud_points", -1), 0);
+  EXPECT_NE(urep.value("nerf_cloud_note", std::string()).find("nothing above the density threshold"), std::string::npos)
+      << urep.dump(2);
+  EXPECT_NE(urep.value("mesh_note", std::string()).find("not written"), std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(untrained / "nerf_cloud.ply"));
+  EXPECT_FALSE(std::filesystem::exists(untrained / "mesh.ply"));
+  EXPECT_TRUE(std::filesystem::exists(untrained / "nerf" / "model.nerf"));
   for (const auto* d : {&out, &sparse_out}) {
     const cv::Mat plot = cv::imread((*d / "trajectory.png").string());
     EXPECT_EQ(plot.size(), cv::Size(1200, 900)) << *d;

@@ -161,6 +161,8 @@ struct NerfMappingOptions {
   // Offline runs: training after the sequence, with the final poses (tracking and mapping may end
   // before the NeRF has had much time beside them).
   double final_train_seconds = 60.0;
+  // Or a fixed number of steps (reproducible figures whatever the machine's load); 0: by time.
+  int64_t final_train_steps = 0;
   // Samples per step of the final training (0: train.samples_per_step). Larger steps spread the
   // per-step costs (sparse Adam, grid updates) over more samples but make fewer steps: on KITTI 06
   // 2^16 gave twice the samples per second of 2^14 and a better held-out PSNR, on New Tsukuba
@@ -215,6 +217,10 @@ struct NerfMappingOptions {
       check::range(1.0, 64.0));
     v("final_train_seconds", final_train_seconds,
       "Offline runs: seconds of NeRF training after the sequence, with the final poses", check::range(0.0, 1e6));
+    v("final_train_steps", final_train_steps,
+      "Offline runs: when > 0, the training after the sequence makes exactly this many steps instead, however long "
+      "they take (the same model whatever the machine's load; a stop request still shortens it)",
+      check::range(int64_t(0), int64_t(100000000)));
     v("final_samples_per_step", final_samples_per_step,
       "Samples per step of the final training (0: train.samples_per_step)", check::range(0, 1 << 22));
     v("final_threads", final_threads, "Threads of the final training (0: all hardware threads)", check::range(0, 256));
