@@ -39,8 +39,8 @@ cv::Mat decodeImage(const std::vector<uchar>& bytes, ImageMode mode, const std::
   if (!header) fail("{}: not a readable image (unknown format: PNG, JPEG, BMP, TIFF or PNM expected)", name);
   if (header->width > kMaxImageSide || header->height > kMaxImageSide ||
       header->width * header->height > kMaxImagePixels)
-    fail("{}: {} header declares {}x{} pixels, more than this reader accepts ({} per side, {} megapixels)",
-         name, io_detail::imageFormatName(header->format), header->width, header->height, kMaxImageSide,
+    fail("{}: {} header declares {}x{} pixels, more than this reader accepts ({} per side, {} megapixels)", name,
+         io_detail::imageFormatName(header->format), header->width, header->height, kMaxImageSide,
          kMaxImagePixels >> 20);
   io_detail::checkImageComplete(bytes, header->format, name);
   if (header->format == io_detail::ImageFormat::kJpeg) io_detail::checkJpegData(bytes, name);

@@ -85,7 +85,8 @@ std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const
   if (ro.odometry) {
     if (ro.map) fail("run: --odometry with --map is not supported (the map keeps the scale it was saved with)");
     odo = std::make_shared<const OdometryTrack>(OdometryTrack::load(*ro.odometry, sys.odometry));
-    if (ds.odometry()) spdlog::info("--odometry {} is used, not the dataset's {}", ro.odometry->string(), ds.odometry()->source);
+    if (ds.odometry())
+      spdlog::info("--odometry {} is used, not the dataset's {}", ro.odometry->string(), ds.odometry()->source);
   } else if (auto own = ds.odometry()) {
     // A bag's odometry topic: the same track as the file would give.
     if (ro.map) {
@@ -93,9 +94,8 @@ std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const
                    own->source);
       return nullptr;
     }
-    odo = std::make_shared<const OdometryTrack>(std::move(own->T_odom_base),
-                                                rigidTransformFromRowMajor(sys.odometry.T_base_cam), own->source,
-                                                sys.odometry);
+    odo = std::make_shared<const OdometryTrack>(
+        std::move(own->T_odom_base), rigidTransformFromRowMajor(sys.odometry.T_base_cam), own->source, sys.odometry);
   } else {
     return nullptr;
   }

@@ -29,16 +29,16 @@
 #include <unistd.h>
 
 #include <fmt/format.h>
-#include <spdlog/spdlog.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <nav_msgs/Odometry.h>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
+#include <spdlog/spdlog.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "../dataset_internal.h"
 #include "../image_header.h"
@@ -109,8 +109,7 @@ SE3 checkedPose(double tx, double ty, double tz, double qx, double qy, double qz
     if (!std::isfinite(v)) fail("{}: field 'pose': a value is not finite ({})", where, numberForMessage(v, 6));
   const double n = std::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
   if (n == 0.0) fail("{}: field 'pose.orientation': the quaternion is zero", where);
-  if (std::abs(n - 1.0) > 1e-3)
-    fail("{}: field 'pose.orientation': not a unit quaternion (norm {:.6g})", where, n);
+  if (std::abs(n - 1.0) > 1e-3) fail("{}: field 'pose.orientation': not a unit quaternion (norm {:.6g})", where, n);
   return SE3(Eigen::Quaterniond(qw / n, qx / n, qy / n, qz / n), Eigen::Vector3d(tx, ty, tz));
 }
 
@@ -118,8 +117,8 @@ SE3 checkedPose(double tx, double ty, double tz, double qx, double qy, double qz
 // library cannot include the ROS layer).
 Camera cameraFromInfo(const sensor_msgs::CameraInfo& info, const std::string& source) {
   if (info.width == 0 || info.height == 0 || info.width > kMaxSide || info.height > kMaxSide)
-    throw fieldError(source, "width/height", fmt::format("image size {}x{} is empty or too large", info.width,
-                                                         info.height));
+    throw fieldError(source, "width/height",
+                     fmt::format("image size {}x{} is empty or too large", info.width, info.height));
   if (info.binning_x > 1 || info.binning_y > 1)
     throw fieldError(source, "binning", fmt::format("binning {}x{} is not supported", info.binning_x, info.binning_y));
   const bool full_roi =
@@ -324,7 +323,8 @@ class BagDataset : public Dataset {
       fail("{}: no topic '{}' ({}); the bag's topics: {}", file_.string(), cutForMessage(topic), option,
            topicList(topics));
     if (std::find(types.begin(), types.end(), it->second) == types.end())
-      fail("{}: topic '{}' ({}) is a {}, not a {}", file_.string(), topic, option, it->second, fmt::join(types, " or "));
+      fail("{}: topic '{}' ({}) is a {}, not a {}", file_.string(), topic, option, it->second,
+           fmt::join(types, " or "));
   }
 
   std::string chooseImageTopic(const std::map<std::string, std::string>& topics, const std::string& wanted) const {
@@ -430,7 +430,8 @@ class BagDataset : public Dataset {
           if (fmt_s.find("16") != std::string::npos)
             fail("{}: format '{}': 16-bit images are not supported", where, cutForMessage(fmt_s));
           const auto sniff = io_detail::sniffImageHeader(p->data);
-          if (!sniff || (sniff->format != io_detail::ImageFormat::kPng && sniff->format != io_detail::ImageFormat::kJpeg))
+          if (!sniff ||
+              (sniff->format != io_detail::ImageFormat::kPng && sniff->format != io_detail::ImageFormat::kJpeg))
             fail("{}: format '{}': the data is not a PNG or JPEG image", where, cutForMessage(fmt_s));
           w = static_cast<int>(std::clamp<int64_t>(sniff->width, -1, kMaxSide + 1));
           h = static_cast<int>(std::clamp<int64_t>(sniff->height, -1, kMaxSide + 1));
@@ -451,11 +452,12 @@ class BagDataset : public Dataset {
           fail("{}: the image is {}x{}, the first one (message 0) is {}x{}: the image size changes mid-bag", where, w,
                h, width_, height_);
         }
-        if (header.stamp.nsec >= 1000000000u) fail("{}: field 'header.stamp': nsec {} >= 1e9", where, header.stamp.nsec);
+        if (header.stamp.nsec >= 1000000000u)
+          fail("{}: field 'header.stamp': nsec {} >= 1e9", where, header.stamp.nsec);
         const double t = fromRosTime(header.stamp);
         if (k > 0 && !(t > prev))
-          fail("{}: field 'header.stamp': {} s is not after the previous message's ({} s): stamps go back",
-               where, numberForMessage(t, 9), numberForMessage(prev, 9));
+          fail("{}: field 'header.stamp': {} s is not after the previous message's ({} s): stamps go back", where,
+               numberForMessage(t, 9), numberForMessage(prev, 9));
         prev = t;
         all.push_back({m, k, t, std::nullopt});
         ++k;
@@ -508,7 +510,8 @@ class BagDataset : public Dataset {
           header = p->header;
           pose = p->pose;
         }
-        if (header.stamp.nsec >= 1000000000u) fail("{}: field 'header.stamp': nsec {} >= 1e9", where, header.stamp.nsec);
+        if (header.stamp.nsec >= 1000000000u)
+          fail("{}: field 'header.stamp': nsec {} >= 1e9", where, header.stamp.nsec);
         const double t = fromRosTime(header.stamp);
         if (!out.empty() && !(t > out.back().timestamp))
           fail("{}: field 'header.stamp': {} s is not after the previous message's ({} s): stamps go back", where,
@@ -526,7 +529,8 @@ class BagDataset : public Dataset {
 
   void readOdometry(const std::string& topic) {
     Trajectory t = readPoses(topic);
-    if (t.size() < 2) fail("{}: topic '{}': {} odometry message(s), at least 2 needed", file_.string(), topic, t.size());
+    if (t.size() < 2)
+      fail("{}: topic '{}': {} odometry message(s), at least 2 needed", file_.string(), topic, t.size());
     odometry_ = Odometry{std::move(t), fmt::format("{}:{}", file_.string(), topic)};
   }
 
@@ -587,8 +591,7 @@ void checkBagInChild(const fs::path& file, const DatasetOptions& opts) {
   if (WIFEXITED(status) && WEXITSTATUS(status) == 0) return;
   const std::string how = WIFSIGNALED(status) ? fmt::format("signal {}", WTERMSIG(status))
                                               : fmt::format("exit status {}", WEXITSTATUS(status));
-  if (seen.stage == 0)
-    fail("{}: the bag is damaged: reading its index crashed librosbag ({})", file.string(), how);
+  if (seen.stage == 0) fail("{}: the bag is damaged: reading its index crashed librosbag ({})", file.string(), how);
   fail("{}: topic '{}', message {}: the message's record is damaged: reading it crashed librosbag ({})", file.string(),
        seen.topic, seen.message, how);
 }
@@ -618,7 +621,8 @@ void writeDatasetBag(const Dataset& ds, const fs::path& out, const BagWriteOptio
     const Trajectory checked = readTumTrajectory(*o.odometry);
     for (const auto& line : io_detail::readDataLines(*o.odometry))
       odo.push_back(io_detail::parseNumbers(line, *o.odometry, 8, "odometry sample"));
-    if (odo.size() != checked.size()) fail("{}: the odometry lines could not be read as TUM samples", o.odometry->string());
+    if (odo.size() != checked.size())
+      fail("{}: the odometry lines could not be read as TUM samples", o.odometry->string());
     for (size_t k = 0; k < odo.size(); ++k) odo[k][0] = checked[k].timestamp;
   }
   fs::path tmp = out;
