@@ -436,6 +436,24 @@ TEST(BagDataset, RunOnABadBagExitsWithTheMessage) {
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("unsupported encoding 'yuv422'"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir / "out"));
+  // A bag whose odometry has no time in common with its images: refused as `--odometry` would be.
+  const fs::path far = writeBag(dir / "far.bag", {4, "mono8"});
+  {
+    rosbag::Bag b(far.string(), rosbag::bagmode::Append);
+    for (int k = 0; k < 3; ++k) {
+      nav_msgs::Odometry m;
+      m.header.stamp = ros::Time(100.0 + k);
+      m.pose.pose.orientation.w = 1;
+      b.write("/wheel_odom", ros::Time(100.0 + k), m);
+    }
+  }
+  const auto r2 =
+      test::runCli("run --no-nerf --dataset bag:'" + far.string() + "' --out '" + (dir / "out").string() + "'");
+  EXPECT_EQ(r2.exit_code, 1) << r2.output;
+  EXPECT_NE(r2.output.find("far.bag:/wheel_odom: field 'timestamp': the odometry does not overlap the images"),
+            std::string::npos)
+      << r2.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
 }
 
 }  // namespace
