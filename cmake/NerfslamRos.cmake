@@ -1,6 +1,6 @@
 # The ROS 1 layer. Built only when catkin and the ROS packages are found (Debian's ROS 1:
-# ros_comm 1.15); -DNERFSLAM_BUILD_ROS=OFF forces it off. The library never includes ROS headers;
-# everything ROS lives under apps/ros/.
+# ros_comm 1.15); -DNERFSLAM_BUILD_ROS=OFF forces it off. The library never includes ROS headers but
+# src/io/bag/dataset_bag.cpp's (bags read without ROS, CMakeLists.txt); every node lives under apps/ros/.
 set(NERFSLAM_ROS_COMPONENTS roscpp std_msgs std_srvs sensor_msgs geometry_msgs nav_msgs visualization_msgs
     tf2 tf2_ros tf2_geometry_msgs image_transport cv_bridge pcl_conversions diagnostic_updater)
 find_package(catkin QUIET COMPONENTS ${NERFSLAM_ROS_COMPONENTS} message_generation)

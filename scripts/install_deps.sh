@@ -29,6 +29,7 @@ ROS_PKGS=(
   python3-gencpp python3-genmsg python3-genpy
   python3-rostopic python3-sensor-msgs python3-geometry-msgs python3-nav-msgs python3-visualization-msgs python3-tf2-msgs
   rosbash
+  librosbag-storage-dev
 )
 
 pkgs=("${BUILD_PKGS[@]}")

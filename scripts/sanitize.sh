@@ -63,7 +63,10 @@ case $kind in
     # Not a finding: the kill test's time window assumes an uninstrumented child; under ASan a save
     # takes longer, so fewer of the 60 kills land between saves than the test asks for (11 map
     # generations against > 20). Its subject, atomic saves, is tested in the Release test stage.
-    never=('MapStore\.KillDuringSaveLeavesPreviousMapLoadable$')
+    # Nor the damaged-bag test: its checking child reads damaged bags, whose overstated record lengths
+    # make librosbag's deserialising read out of bounds; ASan reports it in that child (the crash the
+    # child is there to take), docs/sanitizers.md.
+    never=('MapStore\.KillDuringSaveLeavesPreviousMapLoadable$' 'BagDataset\.DamagedBytesAreRefusedNeverACrash$')
     # Long run only (NERFSLAM_SANITIZE_LONG=1): the end-to-end runs that take over a minute each
     # under ASan (measured, docs/sanitizers.md). The parsers, the threads, the map store, the trainer
     # and the renderer all run in the CI selection through their shorter tests.
@@ -78,6 +81,7 @@ case $kind in
           'SyntheticSlam\.(LocalizationOnlySwitchStopsAndResumesMapping|HandheldRoomTracksEveryFrameAccurately)$'
           'OdometryScale\.(SyntheticRoomIsMetricAfterTenSeconds|Kitti06WithNoisyOdometryIsMetric)$'  # 17, 7 s in Release
           'VideoRun\.LosslessVideoTracksExactlyLikeItsFrames$'  # 12 s in Release: two 640x480 room runs
+          'BagRun\.'  # 10 s each in Release: two room runs, two KITTI 06 runs
           'RunStop\.' 'TrainStop\.')  # signals timed for Release speed on whole KITTI / lego runs
     timeout=1800
     targets=(all)

@@ -23,6 +23,7 @@ struct RunArgs {
   bool extend = false;
   std::string save_map;
   std::string odometry;
+  std::string image_topic, camera_info_topic, odometry_topic, groundtruth_topic;
 };
 
 nerfslam::cli::Registrar reg(
@@ -30,7 +31,7 @@ nerfslam::cli::Registrar reg(
     [](CLI::App& sub) -> nerfslam::cli::Runner {
       auto a = std::make_shared<RunArgs>();
       sub.add_option("--dataset", a->dataset,
-                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video); "
+                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video bag); "
                      "without it: the demo on a synthetic room rendered into OUT/sequence");
       sub.add_option("--demo-frames", a->demo_frames, "Frames of the demo sequence (without --dataset)")
           ->check(CLI::Range(30, 100000));
@@ -56,6 +57,16 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--odometry", a->odometry,
                      "Wheel odometry, TUM format (timestamp tx ty tz qx qy qz qw, the base in its odom frame; the "
                      "camera's pose in the base: odometry.T_base_cam in --config): metric scale");
+      sub.add_option("--image-topic", a->image_topic,
+                     "bag: the sensor_msgs/Image or CompressedImage topic (default: the bag's only one)");
+      sub.add_option("--camera-info-topic", a->camera_info_topic,
+                     "bag: the sensor_msgs/CameraInfo topic (default: the only one, or IMAGE_NAMESPACE/camera_info; "
+                     "--camera wins)");
+      sub.add_option("--odometry-topic", a->odometry_topic,
+                     "bag: the nav_msgs/Odometry topic used as --odometry (default: the only one; --odometry wins)");
+      sub.add_option("--groundtruth-topic", a->groundtruth_topic,
+                     "bag: ground truth, geometry_msgs/PoseStamped or nav_msgs/Odometry of the camera (default: "
+                     "/groundtruth when present)");
       sub.add_option("--save-map", a->save_map,
                      "Save the map folder here at the end (default: OUT/map, except after --localize)");
       return [a]() -> int {
@@ -76,6 +87,10 @@ nerfslam::cli::Registrar reg(
         }
         if (!a->save_map.empty()) o.save_map = a->save_map;
         if (!a->odometry.empty()) o.odometry = a->odometry;
+        o.image_topic = a->image_topic;
+        o.camera_info_topic = a->camera_info_topic;
+        o.odometry_topic = a->odometry_topic;
+        o.groundtruth_topic = a->groundtruth_topic;
         // Ctrl-C / SIGTERM: stop reading and write what exists (core/stop_signal.h).
         nerfslam::installStopHandlers();
         const nerfslam::RunResult r = nerfslam::runSlam(o);

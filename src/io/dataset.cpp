@@ -7,6 +7,7 @@
 
 #include "dataset_internal.h"
 #include "nerfslam/core/error.h"
+#include "nerfslam/io/bag.h"
 #include "nerfslam/io/image_io.h"
 
 namespace nerfslam {
@@ -17,6 +18,14 @@ using io_detail::SequenceDataset;
 
 Dataset::~Dataset() = default;
 
+#ifndef NERFSLAM_HAVE_ROSBAG
+bool bagSupported() { return false; }
+void writeDatasetBag(const Dataset&, const fs::path& out, const BagWriteOptions&) {
+  fail("{}: this nerfslam was built without ROS bag support (librosbag-storage-dev was not found at build time)",
+       out.string());
+}
+#endif
+
 std::vector<std::optional<SE3>> Dataset::groundTruthAll() const {
   std::vector<std::optional<SE3>> out;
   out.reserve(size());
@@ -25,6 +34,13 @@ std::vector<std::optional<SE3>> Dataset::groundTruthAll() const {
 }
 
 namespace io_detail {
+
+#ifndef NERFSLAM_HAVE_ROSBAG
+std::unique_ptr<Dataset> openBag(const fs::path& file, const DatasetOptions&) {
+  fail("{}: this nerfslam was built without ROS bag support (librosbag-storage-dev was not found at build time)",
+       file.string());
+}
+#endif
 
 const FrameEntry& SequenceDataset::at(size_t i) const {
   if (i >= frames_.size())
@@ -106,7 +122,7 @@ void SequenceDataset::finish(std::vector<FrameEntry> frames, std::optional<Camer
 
 const std::vector<std::string>& datasetKinds() {
   static const std::vector<std::string> kinds = {"folder",     "tum",     "euroc",   "kitti", "transforms",
-                                                 "middlebury", "strecha", "tsukuba", "video"};
+                                                 "middlebury", "strecha", "tsukuba", "video", "bag"};
   return kinds;
 }
 
@@ -147,7 +163,8 @@ std::string detectDatasetKind(const fs::path& path) {
   if (fs::is_regular_file(path, ec)) {
     if (path.extension() == ".json") return "transforms";
     if (io_detail::isVideoExtension(path)) return "video";
-    fail("{}: a dataset is a folder (or a transforms.json file, or a video file)", path.string());
+    if (path.extension() == ".bag") return "bag";
+    fail("{}: a dataset is a folder (or a transforms.json file, a video file or a ROS bag)", path.string());
   }
   // TUM before transforms: `nerfslam synth` writes both rgb.txt and transforms.json, and the TUM
   // reading (camera.yaml, groundtruth.txt) is the primary one.
@@ -176,6 +193,7 @@ std::unique_ptr<Dataset> openDataset(const std::string& kind_in, const fs::path&
   const std::string kind = kind_in.empty() ? detectDatasetKind(path) : kind_in;
   if (kind == "transforms") return io_detail::openTransforms(path, opts);
   if (kind == "video") return io_detail::openVideo(path, opts);
+  if (kind == "bag") return io_detail::openBag(path, opts);
   if (!fs::is_directory(path, ec)) fail("{}: a {} dataset must be a folder", path.string(), kind);
   if (kind == "folder") return io_detail::openFolder(path, opts);
   if (kind == "tum") return io_detail::openTum(path, opts);

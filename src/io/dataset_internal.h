@@ -69,6 +69,9 @@ std::unique_ptr<Dataset> openTsukuba(const fs::path& root, const DatasetOptions&
 // A video file (reader_video.cpp); isVideoExtension: .mp4 .avi .mkv .mov .webm .m4v .mpg .mpeg.
 std::unique_ptr<Dataset> openVideo(const fs::path& file, const DatasetOptions& opts);
 bool isVideoExtension(const fs::path& path);
+// A ROS 1 bag (bag/dataset_bag.cpp when librosbag_storage was found; else an Error saying the build
+// has no bag support).
+std::unique_ptr<Dataset> openBag(const fs::path& file, const DatasetOptions& opts);
 
 // ---- parsing helpers (dataset_util.cpp) ----
 

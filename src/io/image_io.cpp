@@ -30,17 +30,20 @@ constexpr uint64_t kMaxImageFileBytes = uint64_t{1} << 30;
 
 cv::Mat readImage(const fs::path& path, ImageMode mode) {
   const std::string data = readInputFile(path, "image file", kMaxImageFileBytes);
-  const std::vector<uchar> bytes(data.begin(), data.end());
-  if (bytes.empty()) fail("{}: empty image file", path.string());
+  return decodeImage(std::vector<uchar>(data.begin(), data.end()), mode, path.string());
+}
+
+cv::Mat decodeImage(const std::vector<uchar>& bytes, ImageMode mode, const std::string& name) {
+  if (bytes.empty()) fail("{}: empty image file", name);
   const auto header = io_detail::sniffImageHeader(bytes);
-  if (!header) fail("{}: not a readable image (unknown format: PNG, JPEG, BMP, TIFF or PNM expected)", path.string());
+  if (!header) fail("{}: not a readable image (unknown format: PNG, JPEG, BMP, TIFF or PNM expected)", name);
   if (header->width > kMaxImageSide || header->height > kMaxImageSide ||
       header->width * header->height > kMaxImagePixels)
-    fail("{}: {} header declares {}x{} pixels, more than this reader accepts ({} per side, {} megapixels)",
-         path.string(), io_detail::imageFormatName(header->format), header->width, header->height, kMaxImageSide,
+    fail("{}: {} header declares {}x{} pixels, more than this reader accepts ({} per side, {} megapixels)", name,
+         io_detail::imageFormatName(header->format), header->width, header->height, kMaxImageSide,
          kMaxImagePixels >> 20);
-  io_detail::checkImageComplete(bytes, header->format, path.string());
-  if (header->format == io_detail::ImageFormat::kJpeg) io_detail::checkJpegData(bytes, path.string());
+  io_detail::checkImageComplete(bytes, header->format, name);
+  if (header->format == io_detail::ImageFormat::kJpeg) io_detail::checkJpegData(bytes, name);
   int flags = cv::IMREAD_GRAYSCALE;
   if (mode == ImageMode::kColor) flags = cv::IMREAD_COLOR;
   if (mode == ImageMode::kUnchanged) flags = cv::IMREAD_UNCHANGED;
@@ -48,10 +51,10 @@ cv::Mat readImage(const fs::path& path, ImageMode mode) {
   try {
     image = cv::imdecode(bytes, flags);
   } catch (const cv::Exception& e) {
-    fail("{}: cannot decode image: {}", path.string(), e.what());
+    fail("{}: cannot decode image: {}", name, e.what());
   }
   if (image.empty())
-    fail("{}: corrupt {} image (the decoder could not read its data)", path.string(),
+    fail("{}: corrupt {} image (the decoder could not read its data)", name,
          io_detail::imageFormatName(header->format));
   return image;
 }

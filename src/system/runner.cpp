@@ -71,23 +71,42 @@ std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   dopt.camera_override = ro.camera;
   dopt.max_frames = ro.max_frames;
   dopt.fps = ro.fps;
+  dopt.image_topic = ro.image_topic;
+  dopt.camera_info_topic = ro.camera_info_topic;
+  dopt.odometry_topic = ro.odometry_topic;
+  dopt.groundtruth_topic = ro.groundtruth_topic;
   return openDataset(spec, dopt);
 }
 
 // --odometry: the file read and checked (odometry.h), and its overlap with the frames' timestamps.
 std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const SystemOptions& sys,
                                                      const Dataset& ds) {
-  if (!ro.odometry) return nullptr;
-  if (ro.map) fail("run: --odometry with --map is not supported (the map keeps the scale it was saved with)");
-  auto odo = std::make_shared<const OdometryTrack>(OdometryTrack::load(*ro.odometry, sys.odometry));
+  std::shared_ptr<const OdometryTrack> odo;
+  if (ro.odometry) {
+    if (ro.map) fail("run: --odometry with --map is not supported (the map keeps the scale it was saved with)");
+    odo = std::make_shared<const OdometryTrack>(OdometryTrack::load(*ro.odometry, sys.odometry));
+    if (ds.odometry())
+      spdlog::info("--odometry {} is used, not the dataset's {}", ro.odometry->string(), ds.odometry()->source);
+  } else if (auto own = ds.odometry()) {
+    // A bag's odometry topic: the same track as the file would give.
+    if (ro.map) {
+      spdlog::warn("{}: the dataset's odometry is not used with --map (the map keeps the scale it was saved with)",
+                   own->source);
+      return nullptr;
+    }
+    odo = std::make_shared<const OdometryTrack>(
+        std::move(own->T_odom_base), rigidTransformFromRowMajor(sys.odometry.T_base_cam), own->source, sys.odometry);
+  } else {
+    return nullptr;
+  }
   std::size_t covered = 0;
   for (std::size_t i = 0; i < ds.size(); ++i) covered += odo->baseAt(ds.timestamp(i)).has_value();
   if (covered == 0)
     fail("{}: field 'timestamp': the odometry does not overlap the images: it spans {} .. {} s, the frames {} .. {} s",
-         ro.odometry->string(), numberForMessage(odo->beginTime(), 3), numberForMessage(odo->endTime(), 3),
+         odo->source(), numberForMessage(odo->beginTime(), 3), numberForMessage(odo->endTime(), 3),
          numberForMessage(ds.size() ? ds.timestamp(0) : 0.0, 3),
          numberForMessage(ds.size() ? ds.timestamp(ds.size() - 1) : 0.0, 3));
-  spdlog::info("odometry {}: {} samples, {:.3f} .. {:.3f} s, {}/{} frames covered", ro.odometry->string(), odo->size(),
+  spdlog::info("odometry {}: {} samples, {:.3f} .. {:.3f} s, {}/{} frames covered", odo->source(), odo->size(),
                odo->beginTime(), odo->endTime(), covered, ds.size());
   return odo;
 }

@@ -162,9 +162,10 @@ TEST(DatasetBadInput, MissingAndEmptyFolders) {
 
 TEST(DatasetBadInput, UnknownKind) {
   test::TempDir tmp;
-  expectError([&] { openDataset("foo:" + tmp.path().string()); },
-              {"'foo'", "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba", "video"});
-  EXPECT_EQ(datasetKinds().size(), 9u);
+  expectError(
+      [&] { openDataset("foo:" + tmp.path().string()); },
+      {"'foo'", "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba", "video", "bag"});
+  EXPECT_EQ(datasetKinds().size(), 10u);
 }
 
 TEST(DatasetBadInput, TruncatedImageMidSequence) {

@@ -35,6 +35,12 @@
 //   video       a video file (OpenCV VideoCapture, FFmpeg: mp4, avi, mkv, ...), timestamps from the
 //               container; the camera from the override; the file is decoded once at open (frame
 //               count, stamps, every frame's size) and sequentially by load()
+//   bag         a ROS 1 bag (src/io/bag/dataset_bag.cpp, built when librosbag_storage is found):
+//               sensor_msgs/Image (mono8, rgb8, bgr8, rgba8, bgra8) or CompressedImage (PNG, JPEG)
+//               from one image topic, the camera from a CameraInfo topic (or the override),
+//               odometry (odometry()) from a nav_msgs/Odometry topic and ground truth from a
+//               geometry_msgs/PoseStamped or nav_msgs/Odometry topic when present; every image
+//               message's header (encoding, size, stamp) is checked at open
 // Views without capture times (transforms without "timestamp", middlebury, strecha) get
 // index / 30 s (or index / DatasetOptions::fps).
 #include <cstddef>
@@ -49,6 +55,7 @@
 
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
+#include "nerfslam/io/trajectory.h"
 
 namespace nerfslam {
 
@@ -70,7 +77,7 @@ class Dataset {
  public:
   virtual ~Dataset();
 
-  // "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba", "video".
+  // "folder", "tum", "euroc", "kitti", "transforms", "middlebury", "strecha", "tsukuba", "video", "bag".
   virtual std::string kind() const = 0;
   // The dataset root as given to openDataset.
   virtual const std::filesystem::path& root() const = 0;
@@ -89,6 +96,14 @@ class Dataset {
   // Extras some kinds carry (std::nullopt elsewhere).
   // instant-ngp aabb_scale of a transforms.json (1 when the file omits it).
   virtual std::optional<double> aabbScale() const { return std::nullopt; }
+  // Wheel odometry recorded with the images (a bag's nav_msgs/Odometry topic): T_odom_base samples,
+  // stamps strictly increasing, and where they came from (for messages), as `run --odometry FILE`
+  // would read them.
+  struct Odometry {
+    Trajectory T_odom_base;
+    std::string source;
+  };
+  virtual std::optional<Odometry> odometry() const { return std::nullopt; }
   // Ground truth for all frames in order (std::nullopt entries where missing).
   std::vector<std::optional<SE3>> groundTruthAll() const;
 };
@@ -109,9 +124,18 @@ struct DatasetOptions {
   // (the CLI's flags; the ROS publisher's parameters are "~rate" and "~camera").
   std::string fps_option = "--fps";
   std::string camera_option = "--camera";
+  // A bag's topics (kind "bag"); empty: detected. The image topic: the only sensor_msgs/Image or
+  // CompressedImage topic (several: an error asking for one). camera_info: the only CameraInfo topic,
+  // or IMAGE_NAMESPACE/camera_info among several (not read with camera_override). Odometry: the only
+  // nav_msgs/Odometry topic (none or several: no odometry). Ground truth: a topic named /groundtruth.
+  // A topic named here that the bag does not have is an error.
+  std::string image_topic;
+  std::string camera_info_topic;
+  std::string odometry_topic;
+  std::string groundtruth_topic;
 };
 
-// All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba video.
+// All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba video bag.
 const std::vector<std::string>& datasetKinds();
 
 // "[kind:]PATH" split into its parts; `kind` is empty when the spec names none (then the layout

@@ -19,6 +19,9 @@ namespace nerfslam {
 // decoded with libjpeg's "Corrupt JPEG data" warnings as errors (io/image_header.h).
 // kGray/kColor always give 8-bit images (16-bit data is scaled down by 1/256).
 cv::Mat readImage(const std::filesystem::path& path, ImageMode mode = ImageMode::kGray);
+// The same checks and decoding for an image file's bytes held in memory (a bag's CompressedImage);
+// `name` says where they came from in errors.
+cv::Mat decodeImage(const std::vector<unsigned char>& bytes, ImageMode mode, const std::string& name);
 
 // Encodes `image` in the format of `path`'s extension (cv::imencode: .png, .jpg, ...) and writes it
 // atomically (core/atomic_file.h) with every write checked: an Error naming the file when the

@@ -42,7 +42,14 @@ struct RunOptions {
   // Wheel odometry (mapping/odometry.h): a TUM file of T_odom_base, the extrinsic from
   // SystemOptions::odometry.T_base_cam. The map gets a metric scale once enough motion is seen; the
   // report adds scale_source, odometry (the scale over time) and the ATE under SE(3) alignment.
+  // A dataset's own odometry (a bag's nav_msgs/Odometry topic, Dataset::odometry()) is used the
+  // same way when `odometry` is not given (the file wins; not with `map`).
   std::optional<std::filesystem::path> odometry;
+  // A bag's topics (DatasetOptions::image_topic ...; empty: detected).
+  std::string image_topic;
+  std::string camera_info_topic;
+  std::string odometry_topic;
+  std::string groundtruth_topic;
 };
 
 struct RunResult {
