@@ -284,8 +284,8 @@ std::optional<LoopCandidate> LoopClosing::checkGeometry(const Keyframe& cur, con
     std::sort(ratios.begin(), ratios.end());
     if (!ratios.empty())
       spdlog::debug("loop candidate {} for keyframe {}: {} pairs, depth ratio median {:.3f} q25 {:.3f} q75 {:.3f}",
-                   loop_id, cur.id, ratios.size(), ratios[ratios.size() / 2], ratios[ratios.size() / 4],
-                   ratios[3 * ratios.size() / 4]);
+                    loop_id, cur.id, ratios.size(), ratios[ratios.size() / 2], ratios[ratios.size() / 4],
+                    ratios[3 * ratios.size() / 4]);
   }
   Sim3SolverOptions so;
   so.min_inliers = opt_.min_sim3_inliers;

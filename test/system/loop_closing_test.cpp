@@ -108,10 +108,11 @@ TEST(LoopClosing, RoomTwoLapsEveryRevisitClosedAndAteCutByThree) {
   EXPECT_GT(rec.correction_m, 0.0);
   const Trajectory kf_after = slam.keyframeTrajectory();
   const double kf_ate_before = atePercent(*ds, kf_before), kf_ate_after = atePercent(*ds, kf_after);
-  std::printf("without loop closing: ATE %.3f %%; keyframes %.3f %% -> %.3f %% after the correction of keyframe %ld "
-              "(frame %lu) with %ld (frame %lu), scale %.3f, rotation error %.2f deg\n",
-              ate_off, kf_ate_before, kf_ate_after, long(loop->current), (unsigned long)cur->frameId(),
-              long(loop->loop), (unsigned long)old->frameId(), rec.sim3_scale, rot_err_deg);
+  std::printf(
+      "without loop closing: ATE %.3f %%; keyframes %.3f %% -> %.3f %% after the correction of keyframe %ld "
+      "(frame %lu) with %ld (frame %lu), scale %.3f, rotation error %.2f deg\n",
+      ate_off, kf_ate_before, kf_ate_after, long(loop->current), (unsigned long)cur->frameId(), long(loop->loop),
+      (unsigned long)old->frameId(), rec.sim3_scale, rot_err_deg);
   EXPECT_LT(kf_ate_after, 0.5 * kf_ate_before);
   uint64_t seen = 0;
   std::map<KeyframeId, Sim3> delta;

@@ -49,15 +49,15 @@ struct LoopClosingOptions {
   bool enabled = true;
   std::string vocabulary;  // empty: the shipped config/vocabulary/brief_k12_L4.voc
   int queue = 5;
-  int min_keyframes = 12;        // no detection before the map has this many keyframes
-  int min_keyframe_gap = 10;     // keyframes after a closure before the next detection
-  int min_shared_points = 15;    // a covisible neighbour, for the minimum score (and excluded)
-  int consistency = 3;           // consecutive keyframes that must find the same place
-  int max_candidates = 5;        // best database candidates examined per keyframe
-  int direct_index_level = 1;    // vocabulary level of the guided matching (bow_matcher.h)
-  int min_bow_matches = 20;      // matched map-point pairs needed to try a Sim(3)
-  int min_sim3_inliers = 20;     // the Sim(3) solver's inliers
-  int min_projection_matches = 40;  // keypoints the loop side's points match by projection
+  int min_keyframes = 12;             // no detection before the map has this many keyframes
+  int min_keyframe_gap = 10;          // keyframes after a closure before the next detection
+  int min_shared_points = 15;         // a covisible neighbour, for the minimum score (and excluded)
+  int consistency = 3;                // consecutive keyframes that must find the same place
+  int max_candidates = 5;             // best database candidates examined per keyframe
+  int direct_index_level = 1;         // vocabulary level of the guided matching (bow_matcher.h)
+  int min_bow_matches = 20;           // matched map-point pairs needed to try a Sim(3)
+  int min_sim3_inliers = 20;          // the Sim(3) solver's inliers
+  int min_projection_matches = 40;    // keypoints the loop side's points match by projection
   double projection_radius_px = 7.5;  // search radius by projection (x the keypoint's level scale)
   int max_descriptor_distance = 50;   // Hamming distance of a projection match
   int loop_group_keyframes = 10;      // the loop keyframe and its best covisibles: the points projected
@@ -105,9 +105,9 @@ struct LoopClosureRecord {
   uint64_t frame = 0;  // the current keyframe's frame
   KeyframeId current = -1, loop = -1;
   uint64_t loop_frame = 0;
-  double sim3_scale = 1;            // of S(current <- loop) found by the solver
-  double correction_m = 0;          // the current keyframe's centre moved by (map units)
-  double correction_deg = 0;        // its rotation changed by
+  double sim3_scale = 1;      // of S(current <- loop) found by the solver
+  double correction_m = 0;    // the current keyframe's centre moved by (map units)
+  double correction_deg = 0;  // its rotation changed by
   int sim3_inliers = 0, projection_matches = 0, fused_points = 0, corrected_keyframes = 0;
   double detection_ms = 0;   // from the keyframe's arrival to the accepted Sim(3)
   double correction_ms = 0;  // with the mapping thread held
@@ -116,8 +116,8 @@ struct LoopClosureRecord {
 // A loop found and checked, to be corrected (detect()).
 struct LoopCandidate {
   KeyframeId current = -1, loop = -1;
-  Sim3 S_cur_loop;                           // p_current_cam = S * p_loop_cam
-  Sim3 S_world_cur;                          // the current keyframe's corrected pose as a similarity
+  Sim3 S_cur_loop;                               // p_current_cam = S * p_loop_cam
+  Sim3 S_world_cur;                              // the current keyframe's corrected pose as a similarity
   std::vector<std::pair<int, PointId>> matches;  // current keypoint -> loop-side point (by projection)
   int sim3_inliers = 0;
   double detection_ms = 0;
