@@ -428,6 +428,7 @@ bool LoopClosing::correct(const LoopCandidate& loop, LoopClosureRecord* record) 
     if (d == delta.end()) continue;
     up.point_positions.emplace_back(p.id, d->second * p.position);
   }
+  const uint64_t version_before = map_.version();
   map_.applyUpdate(up);
   // 5. The duplicates: the loop side's point replaces the neighbourhood's.
   int fused = 0;
@@ -447,7 +448,7 @@ bool LoopClosing::correct(const LoopCandidate& loop, LoopClosureRecord* record) 
   const double correction_ms = sw.elapsedMs();
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    deltas_.push_back(std::move(delta));
+    deltas_.push_back({std::move(delta), version_before});
     LoopClosureRecord rec;
     rec.current = loop.current;
     rec.loop = loop.loop;
@@ -483,13 +484,22 @@ bool LoopClosing::correctionsSince(uint64_t* seen, std::map<KeyframeId, Sim3>* d
   if (*seen >= n) return false;
   delta->clear();
   for (uint64_t c = *seen; c < n; ++c)
-    for (const auto& [k, d] : deltas_[c]) {
+    for (const auto& [k, d] : deltas_[c].delta) {
       auto it = delta->find(k);
       if (it == delta->end())
         (*delta)[k] = d;
       else
         it->second = d * it->second;
     }
+  *seen = n;
+  return true;
+}
+
+bool LoopClosing::correctionsSince(uint64_t* seen, std::vector<LoopCorrection>* corrections) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const uint64_t n = deltas_.size();
+  if (*seen >= n) return false;
+  corrections->assign(deltas_.begin() + static_cast<std::ptrdiff_t>(*seen), deltas_.end());
   *seen = n;
   return true;
 }

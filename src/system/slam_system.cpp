@@ -351,6 +351,7 @@ void SlamSystem::trackAgainstMap(const std::shared_ptr<const Frame>& frame, bool
     res.quality = TrackingQuality::kLost;
     if (had_pose) tracker_->setPose(pose_before);
   }
+  if (res.quality != TrackingQuality::kLost) pose_map_version_ = local_.version;
   rec.num_inliers = res.num_inliers;
   last_inliers_ = res.quality == TrackingQuality::kLost ? 0 : res.num_inliers;
   if (res.quality == TrackingQuality::kLost) {
@@ -443,24 +444,32 @@ void SlamSystem::submitIfKeyframe(const std::shared_ptr<const Frame>& frame, con
 
 void SlamSystem::applyLoopCorrections() {
   if (!loop_ || loop_->corrections() == loop_corrections_seen_) return;
-  std::map<KeyframeId, Sim3> delta;
-  if (!loop_->correctionsSince(&loop_corrections_seen_, &delta) || delta.empty()) return;
-  // The tracker moves with its reference keyframe (else the newest corrected one).
-  auto it = delta.find(reference_);
-  if (it == delta.end()) it = std::prev(delta.end());
-  const Sim3& d = it->second;
-  if (tracker_->hasPose()) tracker_->transformMotion(d);
-  if (last_keyframe_pose_) last_keyframe_pose_ = d.transformPose(*last_keyframe_pose_);
-  // Frames are kept relative to their reference keyframe: that keyframe's scale correction scales them.
-  for (auto& r : records_) {
-    const auto dr = delta.find(r.reference);
-    if (dr == delta.end()) continue;
-    r.T_ref_cam = SE3(r.T_ref_cam.rotation(), dr->second.scale() * r.T_ref_cam.translation());
+  std::vector<LoopCorrection> corrections;
+  if (!loop_->correctionsSince(&loop_corrections_seen_, &corrections)) return;
+  for (const LoopCorrection& c : corrections) {
+    if (c.delta.empty()) continue;
+    // The tracker moves with its reference keyframe (else the newest corrected one), unless its
+    // last pose was tracked against a copy of the map that already had the correction (a frame
+    // tracked or relocalised while the loop closer wrote the map).
+    auto it = c.delta.find(reference_);
+    if (it == c.delta.end()) it = std::prev(c.delta.end());
+    const Sim3& d = it->second;
+    if (pose_map_version_ <= c.map_version_before) {
+      if (tracker_->hasPose()) tracker_->transformMotion(d);
+      if (last_keyframe_pose_) last_keyframe_pose_ = d.transformPose(*last_keyframe_pose_);
+    }
+    // Frames are kept relative to their reference keyframe: its scale correction scales them.
+    for (auto& r : records_) {
+      const auto dr = c.delta.find(r.reference);
+      if (dr == c.delta.end()) continue;
+      r.T_ref_cam = SE3(r.T_ref_cam.rotation(), dr->second.scale() * r.T_ref_cam.translation());
+    }
+    spdlog::info("tracking: loop correction applied (the reference keyframe {} moved by scale {:.4f})", it->first,
+                 d.scale());
   }
   local_ = TrackingLocalMap{};
   buildLocalMap(reference_, true);  // at the corrected positions
-  spdlog::info("tracking: loop correction applied (the reference keyframe {} moved by scale {:.4f})", it->first,
-               d.scale());
+  pose_map_version_ = local_.version;
 }
 
 void SlamSystem::setOdometry(std::shared_ptr<const OdometryTrack> odometry) {

@@ -113,6 +113,14 @@ struct LoopClosureRecord {
   double correction_ms = 0;  // with the mapping thread held
 };
 
+// One applied correction: per keyframe the similarity its pose moved by (S_world_kf after = delta *
+// before; points move with their keyframe), and Map::version() just before the map was written (a
+// copy of the map read at a later version already has it).
+struct LoopCorrection {
+  std::map<KeyframeId, Sim3> delta;
+  uint64_t map_version_before = 0;
+};
+
 // A loop found and checked, to be corrected (detect()).
 struct LoopCandidate {
   KeyframeId current = -1, loop = -1;
@@ -160,6 +168,8 @@ class LoopClosing {
   // sets to the current count; false when there is none.
   uint64_t corrections() const { return corrections_.load(std::memory_order_acquire); }
   bool correctionsSince(uint64_t* seen, std::map<KeyframeId, Sim3>* delta) const;
+  // The same, each correction on its own, in order.
+  bool correctionsSince(uint64_t* seen, std::vector<LoopCorrection>* corrections) const;
   std::vector<LoopClosureRecord> closures() const;
   // Time of each keyframe's detection step (ms), in order.
   std::vector<double> detectionTimes() const;
@@ -191,7 +201,7 @@ class LoopClosing {
   mutable std::mutex mutex_;  // closures_, deltas_, detection_ms_
   mutable std::condition_variable idle_cv_;
   std::vector<LoopClosureRecord> closures_;
-  std::vector<std::map<KeyframeId, Sim3>> deltas_;  // per correction
+  std::vector<LoopCorrection> deltas_;  // per correction
   std::vector<double> detection_ms_;
   std::atomic<uint64_t> corrections_{0};
   bool started_ = false;
