@@ -7,13 +7,16 @@
 // bring the second lap back onto the first and fuse the duplicated points.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <map>
 #include <memory>
 #include <random>
+#include <thread>
 #include <vector>
 
 #include "nerfslam/mapping/loop_closing.h"
 #include "nerfslam/mapping/map.h"
+#include "nerfslam/mapping/mapping_thread.h"
 #include "nerfslam/tracking/vocabulary.h"
 #include "test_support.h"
 
@@ -175,6 +178,51 @@ TEST(LoopClosingMap, NoLoopBeforeTheConsistencyIsReached) {
   EXPECT_EQ(lc.corrections(), 0u);
   EXPECT_EQ(lc.database().size(), std::size_t(fed));
   (void)lap2;
+}
+
+// The thread: keyframes submitted as the mapping thread would, the mapping thread held while the
+// map is corrected, a reader copying the map all along (as tracking does, never waiting).
+TEST(LoopClosingMap, ThreadClosesTheLoopWhileTheMapIsRead) {
+  const Scene s = makeScene();
+  Map map(s.camera);
+  const auto lap1 = addLap(map, s, Sim3(), 0);
+  const Sim3 drift(0.8, Eigen::Quaterniond(Eigen::AngleAxisd(3.0 * M_PI / 180, Eigen::Vector3d::UnitZ())),
+                   Eigen::Vector3d(0.5, -0.1, 0.2));
+  const auto lap2 = addLap(map, s, drift, 100);
+  MappingThread mapping(map, MappingOptions{});
+  mapping.start();
+  LoopClosingOptions o;
+  o.min_keyframes = 2;
+  o.min_keyframe_gap = 0;
+  o.queue = 2 * kKeyframesPerLap;
+  LoopClosing lc(map, &mapping, std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
+  lc.start();
+  std::atomic<bool> done{false};
+  std::atomic<int> reads{0};
+  std::thread reader([&] {
+    TrackingLocalMap m;
+    while (!done.load()) {
+      if (map.localMapForTracking(lap2.back(), 10, &m, false)) reads.fetch_add(1);
+      std::this_thread::yield();
+    }
+  });
+  for (KeyframeId id : map.keyframeIds()) EXPECT_TRUE(lc.submit(id));
+  lc.waitIdle();
+  done = true;
+  reader.join();
+  lc.stop();
+  mapping.stop();
+  EXPECT_GT(reads.load(), 0);
+  const auto closures = lc.closures();
+  ASSERT_EQ(closures.size(), 1u);
+  EXPECT_EQ(closures[0].current, lap2[o.consistency - 1]);
+  EXPECT_EQ(closures[0].loop, lap1[o.consistency - 1]);
+  EXPECT_EQ(lc.detectionTimes().size(), std::size_t(2 * kKeyframesPerLap));
+  // The rest of the second lap came after the closure, within min_keyframe_gap 0: nothing more to close
+  // (they now share the first lap's points).
+  EXPECT_EQ(lc.corrections(), 1u);
+  EXPECT_EQ(lc.droppedKeyframes(), 0u);
+  EXPECT_LT((map.keyframe(lap2[0])->centre() - s.poses[0].translation()).norm(), 0.1);
 }
 
 }  // namespace
