@@ -260,7 +260,7 @@ class SlamSystem {
   std::unique_ptr<MappingThread> mapping_;
   std::unique_ptr<LoopClosing> loop_;  // after mapping_: stopped and destroyed first
   uint64_t loop_corrections_seen_ = 0;
-  uint64_t pose_map_version_ = 0;  // Map::version() of the local map the tracker's pose was last tracked against
+  uint64_t pose_map_version_ = 0;      // Map::version() of the local map the tracker's pose was last tracked against
   std::unique_ptr<NerfMapping> nerf_;  // after mapping_: unsubscribes from its bus first
   std::unique_ptr<Initializer> initializer_;
   std::unique_ptr<Tracker> tracker_;
