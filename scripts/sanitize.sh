@@ -24,9 +24,9 @@ case $kind in
   thread)
     build=${NERFSLAM_SANITIZE_BUILD_DIR:-build-tsan}
     san=thread
-    # The tests that run our threads: map locking, queues, the keyframe bus, the mapping and NeRF
-    # threads, the trainer's and field's worker threads, the whole threaded system, the map store.
-    select='^(Map|MapStore|MapStoreCli|MappingThread|KeyframeBus|BoundedQueue|SyntheticSlam|TrackingFaults|NerfMapping|Trainer|TrainerOnline|RadianceField|RunSystem)\.'
+    # The tests that run our threads: map locking, queues, the keyframe bus, the mapping, loop-closing
+    # and NeRF threads, the trainer's and field's worker threads, the whole threaded system, the map store.
+    select='^(Map|MapStore|MapStoreCli|MappingThread|LoopClosingMap|KeyframeBus|BoundedQueue|SyntheticSlam|TrackingFaults|NerfMapping|Trainer|TrainerOnline|RadianceField|RunSystem)\.'
     finding=()
     # Cannot work under TSan (not findings): the TSan runtime dies with SIGBUS at start-up under the
     # test's `ulimit -f 4` (it maps a /tmp/tsan.rodata.<pid> file it cannot extend); the kill test's
