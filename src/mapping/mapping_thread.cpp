@@ -101,6 +101,7 @@ KeyframeId MappingThread::insertNow(KeyframeInsertion kf, bool process) {
     std::lock_guard<std::mutex> lock(stats_mutex_);
     stats_.push_back(s);
   }
+  if (processed_) processed_(id);
   return id;
 }
 
@@ -115,8 +116,11 @@ void MappingThread::run() {
       try {
         const KeyframeId id = insert(std::move(item->keyframe));
         MappingStats s = mapper_.processKeyframe(id);
-        std::lock_guard<std::mutex> lock(stats_mutex_);
-        stats_.push_back(s);
+        {
+          std::lock_guard<std::mutex> lock(stats_mutex_);
+          stats_.push_back(s);
+        }
+        if (processed_) processed_(id);
       } catch (const std::exception& e) {
         spdlog::error("mapping thread: {}", e.what());
       }

@@ -422,6 +422,44 @@ bool trainNerfFinal(SlamSystem& slam, const SystemOptions& sys, int64_t* done) {
 
 // ---- Outputs: the files and report.json.
 
+// loop_closing (enabled), loop_closures (one object per closed loop) and loop_closing_ms (detection per
+// keyframe: median, p99, max; correction per loop: the same).
+void addLoopClosing(const SlamSystem& slam, nlohmann::json& rep) {
+  const LoopClosing* lc = slam.loopClosing();
+  rep["loop_closing"] = lc != nullptr;
+  rep["loop_closures"] = nlohmann::json::array();
+  if (!lc) return;
+  std::vector<double> correction;
+  for (const LoopClosureRecord& c : lc->closures()) {
+    rep["loop_closures"].push_back({{"frame", c.frame},
+                                    {"loop_frame", c.loop_frame},
+                                    {"keyframe", c.current},
+                                    {"loop_keyframe", c.loop},
+                                    {"sim3_scale", c.sim3_scale},
+                                    {"correction_translation", c.correction_m},
+                                    {"correction_rotation_deg", c.correction_deg},
+                                    {"sim3_inliers", c.sim3_inliers},
+                                    {"projection_matches", c.projection_matches},
+                                    {"fused_points", c.fused_points},
+                                    {"corrected_keyframes", c.corrected_keyframes},
+                                    {"detection_ms", c.detection_ms},
+                                    {"correction_ms", c.correction_ms}});
+    correction.push_back(c.correction_ms);
+  }
+  const auto summary = [](std::vector<double> v) {
+    nlohmann::json j = {{"count", v.size()}};
+    if (v.empty()) return j;
+    std::sort(v.begin(), v.end());
+    j["median"] = v[v.size() / 2];
+    j["p99"] = v[std::min(v.size() - 1, static_cast<size_t>(0.99 * double(v.size())))];
+    j["max"] = v.back();
+    return j;
+  };
+  rep["loop_closing_ms"] = {{"detection", summary(lc->detectionTimes())}, {"correction", summary(correction)}};
+  rep["loop_closing_dropped_keyframes"] = lc->droppedKeyframes();
+  rep["loop_corrections_applied_by_tracking"] = slam.loopCorrectionsApplied();
+}
+
 // The report's fields on the run itself: the dataset, the frames, the system's state at the end.
 nlohmann::json runReport(const Dataset& ds, const RunOptions& ro, const SlamSystem& slam, const FramePipe& pipe,
                          const StartMap& start, std::size_t frames_tracked, double wall_s) {
@@ -454,6 +492,7 @@ nlohmann::json runReport(const Dataset& ds, const RunOptions& ro, const SlamSyst
   rep["peak_rss_mb"] = peakRssMb();
   rep["frames_per_second"] = pipe.processed.load() / std::max(wall_s, 1e-9);
   rep["nerf"] = slam.nerf() != nullptr;
+  addLoopClosing(slam, rep);
   return rep;
 }
 

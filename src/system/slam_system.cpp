@@ -77,20 +77,29 @@ SlamSystem::SlamSystem(const Camera& camera, SystemOptions options, std::unique_
   mapping_ = std::make_unique<MappingThread>(*map_, opt_.mapping, static_cast<std::size_t>(opt_.keyframe_queue));
   initializer_ = std::make_unique<Initializer>(opt_.tracking.initializer);
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
+  if (opt_.loop_closing.enabled) {
+    // A missing or bad vocabulary file is an Error naming it (loadVocabulary).
+    auto voc = std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(opt_.loop_closing.vocabulary)));
+    loop_ = std::make_unique<LoopClosing>(*map_, mapping_.get(), std::move(voc), opt_.loop_closing);
+    mapping_->setKeyframeProcessed([this](KeyframeId id) { loop_->submit(id); });
+  }
   if (opt_.nerf.enabled) nerf_ = std::make_unique<NerfMapping>(*map_, mapping_->bus(), opt_.nerf);
+  if (loop_) loop_->start();
   mapping_->start();
   if (nerf_) nerf_->start();
 }
 
 SlamSystem::~SlamSystem() {
   mapping_->stop();
+  if (loop_) loop_->stop();
   if (nerf_) nerf_->stop();
 }
 
 void SlamSystem::reset() {
-  mapping_->waitIdle();
+  waitMappingIdle();
   pollInitialization();  // frames tracked against the map being discarded are discarded with it below
   map_->clear();
+  if (loop_) loop_->clear();  // idle: nothing is submitted while the tracking thread resets
   initializer_->reset();
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
   state_ = TrackingState::kNotInitialized;
@@ -322,7 +331,9 @@ void SlamSystem::trackAgainstMap(const std::shared_ptr<const Frame>& frame, bool
   ++frames_since_keyframe_;
   tracked_since_init_ = true;
   CpuLap lap;
+  applyLoopCorrections();
   buildLocalMap(reference_, false);
+  applyLoopCorrections();  // one that landed while the local map was read
   rec.local_map_cpu_ms = lap();
   const bool had_pose = tracker_->hasPose();
   const SE3 pose_before = tracker_->lastPose();  // restored when a weak pose is refused below
@@ -340,6 +351,7 @@ void SlamSystem::trackAgainstMap(const std::shared_ptr<const Frame>& frame, bool
     res.quality = TrackingQuality::kLost;
     if (had_pose) tracker_->setPose(pose_before);
   }
+  if (res.quality != TrackingQuality::kLost) pose_map_version_ = local_.version;
   rec.num_inliers = res.num_inliers;
   last_inliers_ = res.quality == TrackingQuality::kLost ? 0 : res.num_inliers;
   if (res.quality == TrackingQuality::kLost) {
@@ -430,6 +442,36 @@ void SlamSystem::submitIfKeyframe(const std::shared_ptr<const Frame>& frame, con
                 res.num_matches, res.num_candidates, res.rms_px, d.reason, rec.keyframe ? " -> keyframe" : "");
 }
 
+void SlamSystem::applyLoopCorrections() {
+  if (!loop_ || loop_->corrections() == loop_corrections_seen_) return;
+  std::vector<LoopCorrection> corrections;
+  if (!loop_->correctionsSince(&loop_corrections_seen_, &corrections)) return;
+  for (const LoopCorrection& c : corrections) {
+    if (c.delta.empty()) continue;
+    // The tracker moves with its reference keyframe (else the newest corrected one), unless its
+    // last pose was tracked against a copy of the map that already had the correction (a frame
+    // tracked or relocalised while the loop closer wrote the map).
+    auto it = c.delta.find(reference_);
+    if (it == c.delta.end()) it = std::prev(c.delta.end());
+    const Sim3& d = it->second;
+    if (pose_map_version_ <= c.map_version_before) {
+      if (tracker_->hasPose()) tracker_->transformMotion(d);
+      if (last_keyframe_pose_) last_keyframe_pose_ = d.transformPose(*last_keyframe_pose_);
+    }
+    // Frames are kept relative to their reference keyframe: its scale correction scales them.
+    for (auto& r : records_) {
+      const auto dr = c.delta.find(r.reference);
+      if (dr == c.delta.end()) continue;
+      r.T_ref_cam = SE3(r.T_ref_cam.rotation(), dr->second.scale() * r.T_ref_cam.translation());
+    }
+    spdlog::info("tracking: loop correction applied (the reference keyframe {} moved by scale {:.4f})", it->first,
+                 d.scale());
+  }
+  local_ = TrackingLocalMap{};
+  buildLocalMap(reference_, true);  // at the corrected positions
+  pose_map_version_ = local_.version;
+}
+
 void SlamSystem::setOdometry(std::shared_ptr<const OdometryTrack> odometry) {
   if (!records_.empty()) fail("SlamSystem::setOdometry after the first frame");
   if (odometry && map_mode_ != MapMode::kSlam)
@@ -486,6 +528,7 @@ void SlamSystem::finish(bool global_ba, const std::function<bool()>& stop_global
   if (finished_) return;
   finished_ = true;
   mapping_->stop();
+  if (loop_) loop_->stop();  // the keyframes queued for it are looked at first
   pollInitialization();
   map_->flushTrackingStatistics();  // statistics queued while the mapping thread held the map
   if (global_ba && map_->numKeyframes() >= 2 && opt_.mapping.global_ba_iterations > 0 &&

@@ -142,6 +142,11 @@ void Tracker::scaleMotion(double s) {
   velocity_ = SE3(velocity_.rotation(), s * velocity_.translation());
 }
 
+void Tracker::transformMotion(const Sim3& S) {
+  last_ = S.transformPose(last_);
+  velocity_ = SE3(velocity_.rotation(), S.scale() * velocity_.translation());
+}
+
 SE3 Tracker::predictedPose() const { return has_velocity_ ? last_ * velocity_ : last_; }
 
 TrackingResult Tracker::track(const Frame& frame, const std::vector<TrackingMapPoint>& local_map, const SE3* prior) {

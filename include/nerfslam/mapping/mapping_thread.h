@@ -87,6 +87,10 @@ class MappingThread {
   // Blocks until idle() (used by lock-step offline runs, never by tracking).
   void waitIdle() const;
 
+  // Called on the mapping thread with each keyframe it has processed (after local mapping; e.g. the
+  // loop closer's submit). Set before start().
+  void setKeyframeProcessed(std::function<void(KeyframeId)> callback) { processed_ = std::move(callback); }
+
   KeyframeBus& bus() { return bus_; }
   LocalMapper& mapper() { return mapper_; }
   uint64_t droppedKeyframes() const { return queue_.dropped(); }
@@ -115,6 +119,7 @@ class MappingThread {
   mutable std::condition_variable idle_cv_;
   std::vector<MappingStats> stats_;
   bool started_ = false;
+  std::function<void(KeyframeId)> processed_;
 };
 
 }  // namespace nerfslam

@@ -27,6 +27,7 @@
 #include "nerfslam/core/options.h"
 #include "nerfslam/core/pose.h"
 #include "nerfslam/io/trajectory.h"
+#include "nerfslam/mapping/loop_closing.h"
 #include "nerfslam/mapping/map.h"
 #include "nerfslam/mapping/mapping_thread.h"
 #include "nerfslam/mapping/odometry.h"
@@ -49,6 +50,7 @@ inline TrackingOptions systemTrackingDefaults() {
 struct SystemOptions {
   TrackingOptions tracking = systemTrackingDefaults();
   MappingOptions mapping;
+  LoopClosingOptions loop_closing;
   int local_map_keyframes = 10;          // covisible keyframes whose points tracking matches against
   int keyframe_queue = 3;                // mapping input queue (keyframes beyond it are dropped)
   int relocalization_candidates = 5;     // most recent keyframes tried when lost
@@ -65,6 +67,7 @@ struct SystemOptions {
   void visit(V& v) {
     v("tracking", tracking, "Tracking front end");
     v("mapping", mapping, "Mapping back end");
+    v("loop_closing", loop_closing, "Loop closing thread: place recognition, Sim(3), essential-graph correction");
     v("nerf", nerf, "NeRF mapping thread (dense map)");
     v("odometry", odometry, "Wheel odometry (run --odometry): metric scale and the base-to-camera extrinsic");
     v("local_map_keyframes", local_map_keyframes, "Covisible keyframes forming the local map tracked against",
@@ -157,8 +160,16 @@ class SlamSystem {
 
   TrackingState state() const { return state_; }
   bool initialized() const { return initialized_once_; }
-  bool mappingIdle() const { return mapping_->idle(); }
-  void waitMappingIdle() const { mapping_->waitIdle(); }
+  // Mapping and loop closing idle (nothing queued or in progress).
+  bool mappingIdle() const { return mapping_->idle() && (!loop_ || loop_->idle()); }
+  void waitMappingIdle() const {
+    mapping_->waitIdle();
+    if (loop_) loop_->waitIdle();
+  }
+  // The loop closing thread (nullptr when options.loop_closing.enabled is false).
+  const LoopClosing* loopClosing() const { return loop_.get(); }
+  // Loop corrections the tracking thread has applied to its own state (pose, motion model, frames).
+  uint64_t loopCorrectionsApplied() const { return loop_corrections_seen_; }
   const Map& map() const { return *map_; }
   Map& map() { return *map_; }
   KeyframeBus& keyframeBus() { return mapping_->bus(); }
@@ -233,6 +244,10 @@ class SlamSystem {
                         FrameRecord& rec);
   WeakTrackingPolicy weakTrackingPolicy() const;
   void reset();
+  // The loop closer's corrections since the last call, applied to the tracker's pose and motion
+  // model, the frames' poses relative to their reference keyframes and the local map (tracking
+  // thread; never waits).
+  void applyLoopCorrections();
   // At a new keyframe: the odometry's scale estimate, applied once valid (setOdometry).
   void updateOdometryScale(uint64_t index, double timestamp);
   void applyScale(double s);
@@ -243,6 +258,9 @@ class SlamSystem {
   SystemOptions opt_;
   std::unique_ptr<Map> map_;
   std::unique_ptr<MappingThread> mapping_;
+  std::unique_ptr<LoopClosing> loop_;  // after mapping_: stopped and destroyed first
+  uint64_t loop_corrections_seen_ = 0;
+  uint64_t pose_map_version_ = 0;      // Map::version() of the local map the tracker's pose was last tracked against
   std::unique_ptr<NerfMapping> nerf_;  // after mapping_: unsubscribes from its bus first
   std::unique_ptr<Initializer> initializer_;
   std::unique_ptr<Tracker> tracker_;

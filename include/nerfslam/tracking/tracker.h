@@ -102,6 +102,9 @@ class Tracker {
   // The map was scaled by `s` about the world origin (e.g. a metric scale from odometry): the last
   // pose's centre and the motion model's translation are scaled with it.
   void scaleMotion(double s);
+  // The map was moved by the similarity `S` (a loop correction: x -> S x): the last pose moves with
+  // it, the motion model's translation is scaled by its scale.
+  void transformMotion(const Sim3& S);
   // The last pose set by setPose/track (identity before any).
   const SE3& lastPose() const { return last_; }
   bool hasPose() const { return has_pose_; }
