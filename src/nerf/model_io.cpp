@@ -149,7 +149,9 @@ void saveModel(NerfModel& model, const std::filesystem::path& path, const SaveOp
   h["field_config"] = fc;
   h["scene"] = {{"scale", model.scene.scale},
                 {"offset", {model.scene.offset.x(), model.scene.offset.y(), model.scene.offset.z()}},
-                {"aabb_scale", model.scene.aabb_scale}};
+                {"aabb_scale", model.scene.aabb_scale},
+                {"cone_angle", model.scene.cone_angle},
+                {"max_step", model.scene.max_step}};
   h["grid"] = {{"cascades", model.grid->cascades()},
                {"resolution", OccupancyGrid::kRes},
                {"threshold", model.grid->threshold()}};
@@ -268,8 +270,15 @@ NerfModel loadModel(const std::filesystem::path& path) {
     if (off.size() != 3) throw fieldError(file, "scene.offset", "must have 3 numbers");
     m.scene.offset = Eigen::Vector3d(off[0], off[1], off[2]);
     m.scene.aabb_scale = s.at("aabb_scale").get<double>();
-    m.scene.validate(file);
     const int cascades = h.at("grid").at("cascades").get<int>();
+    if (s.contains("cone_angle") || s.contains("max_step")) {
+      m.scene.cone_angle = s.at("cone_angle").get<double>();
+      m.scene.max_step = s.at("max_step").get<double>();
+    } else {  // written before the march was recorded: instant-ngp's, as those builds marched
+      m.scene.cone_angle = 1.0 / 256.0;
+      m.scene.max_step = double(kMinStep) * double(1 << std::clamp(cascades - 1, 0, 30));
+    }
+    m.scene.validate(file);
     if (h.at("grid").at("resolution").get<int>() != OccupancyGrid::kRes)
       throw fieldError(file, "grid.resolution", "unsupported occupancy grid resolution");
     m.training_steps = h.at("training_steps").get<uint64_t>();

@@ -4,10 +4,11 @@
 
 namespace nerfslam::nerf {
 
-MarchParams MarchParams::forScene(double aabb_scale, int cascades) {
+MarchParams MarchParams::forScene(const SceneTransform& scene, int cascades) {
   MarchParams p;
-  p.cone_angle = aabb_scale > 1.0 ? 1.f / 256.f : 0.f;
-  p.max_step = kMinStep * float(1 << (cascades - 1));
+  p.cone_angle = scene.aabb_scale > 1.0 ? float(scene.cone_angle) : 0.f;
+  p.max_step = scene.max_step > 0 ? float(scene.max_step) : OccupancyGrid::cellSize(cascades - 1) * 1.7320508f;
+  p.max_step = std::max(p.max_step, kMinStep);
   return p;
 }
 

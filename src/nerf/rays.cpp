@@ -12,6 +12,10 @@ void SceneTransform::validate(const std::string& source) const {
   if (!std::isfinite(aabb_scale) || aabb_scale < 1 || aabb_scale > 128 ||
       std::exp2(std::round(std::log2(aabb_scale))) != aabb_scale)
     throw fieldError(source, "aabb_scale", fmt::format("must be a power of two in [1, 128], got {}", aabb_scale));
+  if (!std::isfinite(cone_angle) || cone_angle < 0 || cone_angle > 1)
+    throw fieldError(source, "cone_angle", fmt::format("must be in [0, 1], got {}", cone_angle));
+  if (!std::isfinite(max_step) || max_step < 0 || max_step > 10)
+    throw fieldError(source, "max_step", fmt::format("must be in [0, 10] (0: automatic), got {}", max_step));
 }
 
 RayGenerator::RayGenerator(const Camera& camera, const SE3& T_world_cam, const SceneTransform& scene)

@@ -269,7 +269,7 @@ RenderResult renderView(const NerfModel& model, const Camera& camera, const SE3&
   const ViewSetup v{model,
                     opt,
                     RayGenerator(camera, T_world_cam, model.scene),
-                    MarchParams::forScene(model.scene.aabb_scale, model.grid->cascades()),
+                    MarchParams::forScene(model.scene, model.grid->cascades()),
                     T_world_cam.rotationMatrix().col(2).cast<float>(),
                     float(1.0 / model.scene.scale),
                     {float(opt.background[0]), float(opt.background[1]), float(opt.background[2])},

@@ -597,7 +597,7 @@ StepStats Trainer::step() {
   }
   const int T = opt_.threads;
   StepPlan plan;
-  plan.march = MarchParams::forScene(model_.scene.aabb_scale, model_.grid->cascades());
+  plan.march = MarchParams::forScene(model_.scene, model_.grid->cascades());
   plan.budget = std::max(1, opt_.samples_per_step / T);
   plan.chunk = std::max(1, std::min(plan.budget, opt_.samples_per_chunk));
   plan.delta = float(opt_.huber_delta);

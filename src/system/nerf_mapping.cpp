@@ -208,7 +208,8 @@ void NerfMapping::createModel() {
   std::vector<Eigen::Vector3d> cams;
   for (const auto& kf : map_.keyframes()) cams.push_back(kf.centre());
   if (pts.size() < 20 || cams.size() < 2) return;  // wait for an initialised map
-  const nerf::SceneTransform scene = nerf::fitSceneBox(pts, cams, opt_.box_margin, opt_.aabb_scale);
+  nerf::SceneTransform scene = nerf::fitSceneBox(pts, cams, opt_.box_margin, opt_.aabb_scale);
+  scene.cone_angle = opt_.cone_angle;
   nerf::FieldConfig fc;
   fc.log2_hashmap_size = opt_.log2_hashmap_size;
   model_ = std::make_unique<nerf::NerfModel>(nerf::NerfModel::create(fc, scene, uint64_t(opt_.train.seed)));
@@ -400,8 +401,8 @@ bool NerfMapping::checkRefit() {
 void NerfMapping::refit() {
   const auto t0 = Clock::now();
   const nerf::SceneTransform old = model_->scene;
-  const nerf::SceneTransform scene =
-      nerf::refitSceneBox(old, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale);
+  nerf::SceneTransform scene = nerf::refitSceneBox(old, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale);
+  scene.cone_angle = opt_.cone_angle;
   int64_t refits;
   {
     std::lock_guard<std::mutex> s(stats_mutex_);

@@ -43,7 +43,7 @@ double median(std::vector<double> v) {
 // and the samples a ray would march past its termination.
 void sampleStats(const nerf::NerfModel& model, const Camera& cam, const SE3& pose) {
   const nerf::RayGenerator gen(cam, pose, model.scene);
-  const nerf::MarchParams mp = nerf::MarchParams::forScene(model.scene.aabb_scale, model.grid->cascades());
+  const nerf::MarchParams mp = nerf::MarchParams::forScene(model.scene, model.grid->cascades());
   std::vector<float> xyz(3 * 4096), q(3 * 4096), t(4096), dt(4096), sigma(4096), geo(4096 * nerf::kDensityOutputs);
   double n_rays = 0, n_hit = 0, s_total = 0, s_before = 0, s_body = 0, s_tail = 0, s_after = 0, s_miss = 0;
   for (int y = 0; y < cam.height; y += 2)

@@ -32,6 +32,8 @@ NerfModel randomModel() {
   SceneTransform scene;
   scene.aabb_scale = 2;
   scene.scale = 0.25;
+  scene.cone_angle = 1.0 / 32;  // the march is the model's: renders use what training used
+  scene.max_step = 0.01;
   NerfModel m = NerfModel::create(smallConfig(), scene, 42);
   std::mt19937 rng(1);
   std::uniform_real_distribution<float> u(-1.f, 1.f);
@@ -70,6 +72,8 @@ TEST(ModelIo, RoundTripIsBitExact) {
   EXPECT_EQ(b.training_steps, 1234u);
   EXPECT_EQ(b.scene.aabb_scale, 2.0);
   EXPECT_EQ(b.scene.scale, 0.25);
+  EXPECT_EQ(b.scene.cone_angle, 1.0 / 32);
+  EXPECT_EQ(b.scene.max_step, 0.01);
   EXPECT_EQ(b.field_config.n_levels, 8);
   EXPECT_EQ(b.field_config.hidden, 16);
   const auto pa = a.field->parameters(), pb = b.field->parameters();

@@ -119,7 +119,7 @@ void checkSkipping(double aabb_scale, unsigned seed) {
   const int cascades = OccupancyGrid::cascadesForAabbScale(aabb_scale);
   OccupancyGrid grid(cascades);
   grid.update(sphereDensity, {});
-  const MarchParams mp = MarchParams::forScene(aabb_scale, cascades);
+  const MarchParams mp = MarchParams::forScene(scene, cascades);
   std::mt19937 rng(seed);
   std::normal_distribution<float> n(0.f, 1.f);
   std::uniform_real_distribution<float> u(0.f, 1.f);
@@ -161,7 +161,7 @@ TEST(Raymarch, ResumableMarchGivesTheSameSamples) {
   OccupancyGrid grid(1);
   grid.update(sphereDensity, {});
   SceneTransform scene;
-  const MarchParams mp = MarchParams::forScene(1, 1);
+  const MarchParams mp = MarchParams::forScene(scene, 1);
   const Ray ray{Eigen::Vector3f(-0.5f, 0.4f, 0.6f), Eigen::Vector3f(1.f, 0.05f, -0.02f).normalized()};
   RayMarcher a(ray, grid, scene, mp, 0.3f), b(ray, grid, scene, mp, 0.3f);
   std::vector<float> xa(3 * 4096), ta(4096), da(4096), xb(3 * 4096), tb(4096), db(4096);

@@ -58,7 +58,7 @@ TEST(Render, MatchesThePerRayReference) {
   const RenderResult r = renderView(model, cam, pose, ro);
 
   const RayGenerator gen(cam, pose, model.scene);
-  const MarchParams mp = MarchParams::forScene(model.scene.aabb_scale, model.grid->cascades());
+  const MarchParams mp = MarchParams::forScene(model.scene, model.grid->cascades());
   const Eigen::Vector3f z_axis = pose.rotationMatrix().col(2).cast<float>();
   const float bg[3] = {0.2f, 0.5f, 0.9f};
   std::vector<float> xyz(3 * 8192), q(3 * 8192), t(8192), dt(8192), dir(3 * 8192), sigma(8192), rgb(3 * 8192);

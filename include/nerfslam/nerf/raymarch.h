@@ -3,14 +3,14 @@
 //
 // Steps start at the ray's entry into the scene AABB plus a random fraction of one step. The step is
 // dt(t) = clamp(t * cone_angle, kMinStep, max_step): constant sqrt(3)/1024 when cone_angle = 0 (used
-// for aabb_scale 1), growing exponentially with distance otherwise (cone_angle 1/256 for larger
-// scenes). At each step the occupancy cell (at the cascade picked from position and step size) is
-// tested: occupied -> emit a sample at t with length dt; empty -> jump to the first step position at
-// or past the next cell boundary along the ray (DDA skip). Jumps are whole steps, so samples always
-// land on the same step lattice as an unskipped march: skipping never drops an occupied cell's
-// sample. With cone_angle = 0, t_k = t_0 + k * dt exactly (no accumulated rounding). In empty space
-// the jump goes to the exit of the largest empty block around the cell (16^3 or 4^3 cells, see
-// OccupancyGrid::occupiedBlock) rather than of the cell alone: fewer tests, the same samples.
+// for aabb_scale 1), growing exponentially with distance otherwise (SceneTransform::cone_angle,
+// 1/64 by default, instant-ngp's 1/256 in older models). At each step the occupancy cell (at the cascade picked from
+// position and step size) is tested: occupied -> emit a sample at t with length dt; empty -> jump to the first step
+// position at or past the next cell boundary along the ray (DDA skip). Jumps are whole steps, so samples always land on
+// the same step lattice as an unskipped march: skipping never drops an occupied cell's sample. With cone_angle = 0, t_k
+// = t_0 + k * dt exactly (no accumulated rounding). In empty space the jump goes to the exit of the largest empty block
+// around the cell (16^3 or 4^3 cells, see OccupancyGrid::occupiedBlock) rather than of the cell alone: fewer tests, the
+// same samples.
 #include <algorithm>
 #include <cmath>
 
@@ -20,9 +20,9 @@
 namespace nerfslam::nerf {
 
 struct MarchParams {
-  float cone_angle = 0.f;     // 0 for aabb_scale 1, 1/256 otherwise
-  float max_step = kMinStep;  // sqrt(3) * 2^(cascades-1) / 1024
-  static MarchParams forScene(double aabb_scale, int cascades);
+  float cone_angle = 0.f;     // 0 for aabb_scale 1, the scene's cone_angle otherwise
+  float max_step = kMinStep;  // the scene's max_step, or the diagonal of a cell of the largest cascade
+  static MarchParams forScene(const SceneTransform& scene, int cascades);
   float dt(float t) const { return std::clamp(t * cone_angle, kMinStep, max_step); }
 };
 

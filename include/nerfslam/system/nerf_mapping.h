@@ -151,6 +151,7 @@ struct NerfMappingOptions {
   int pose_refresh_steps = 8;
   double box_margin = 1.2;
   double aabb_scale = 2.0;
+  double cone_angle = 1.0 / 64.0;  // nerf::SceneTransform::cone_angle of the boxes this fits
   double refit_outside_fraction = 0.05;
   int refit_check_steps = 200;
   int distill_steps = 300;
@@ -199,6 +200,10 @@ struct NerfMappingOptions {
     v("box_margin", box_margin, "Scene box = robust extent of the sparse map times this", check::range(1.0, 100.0));
     v("aabb_scale", aabb_scale, "NeRF box side in units of the fitted box (power of two: cascades)",
       check::range(1.0, 128.0));
+    v("cone_angle", cone_angle,
+      "With aabb_scale > 1, the march's step grows as distance x cone_angle (instant-ngp: 1/256); larger: fewer "
+      "samples per ray far away",
+      check::range(0.0, 0.1));
     v("refit_outside_fraction", refit_outside_fraction,
       "Re-fit the box when more than this fraction of the map points is outside it", check::range(0.0, 1.0));
     v("refit_check_steps", refit_check_steps, "Steps between box checks", check::range(1, 1000000));
