@@ -4,96 +4,24 @@
 #include <cmath>
 
 #include <cv_bridge/cv_bridge.h>
-#include <sensor_msgs/distortion_models.h>
 #include <sensor_msgs/image_encodings.h>
 #include <opencv2/imgproc.hpp>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/io/camera_info.h"
 
 namespace nerfslam::rosbridge {
 
 namespace enc = sensor_msgs::image_encodings;
 
 sensor_msgs::CameraInfo toCameraInfo(const Camera& camera, const std_msgs::Header& header) {
-  sensor_msgs::CameraInfo info;
+  sensor_msgs::CameraInfo info = cameraInfoFromCamera<sensor_msgs::CameraInfo>(camera);
   info.header = header;
-  info.width = static_cast<uint32_t>(camera.width);
-  info.height = static_cast<uint32_t>(camera.height);
-  switch (camera.distortion_model) {
-    case DistortionModel::kNone:
-      info.distortion_model = sensor_msgs::distortion_models::PLUMB_BOB;
-      info.D.assign(5, 0.0);
-      break;
-    case DistortionModel::kRadTan:
-      info.distortion_model = sensor_msgs::distortion_models::PLUMB_BOB;
-      info.D = camera.distortion;
-      info.D.resize(5, 0.0);  // k1 k2 p1 p2 k3 (k3 = 0 when the camera has four)
-      break;
-    case DistortionModel::kEquidistant:
-      info.distortion_model = sensor_msgs::distortion_models::EQUIDISTANT;
-      info.D = camera.distortion;
-      break;
-  }
-  info.K = {camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0};
-  info.R = {1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0};
-  info.P = {camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0};
-  info.binning_x = 0;
-  info.binning_y = 0;
-  info.roi.x_offset = 0;
-  info.roi.y_offset = 0;
-  info.roi.width = 0;
-  info.roi.height = 0;
-  info.roi.do_rectify = false;
   return info;
 }
 
 Camera fromCameraInfo(const sensor_msgs::CameraInfo& info, const std::string& source) {
-  if (info.width == 0 || info.height == 0)
-    throw fieldError(source, "width/height", fmt::format("image size {}x{} is empty", info.width, info.height));
-  if (info.binning_x > 1 || info.binning_y > 1)
-    throw fieldError(source, "binning",
-                     fmt::format("binning {}x{} is not supported (publish full-resolution calibration)", info.binning_x,
-                                 info.binning_y));
-  const bool full_roi =
-      (info.roi.width == 0 && info.roi.height == 0) || (info.roi.x_offset == 0 && info.roi.y_offset == 0 &&
-                                                        info.roi.width == info.width && info.roi.height == info.height);
-  if (!full_roi)
-    throw fieldError(source, "roi",
-                     fmt::format("a region of interest ({}x{} at {},{}) is not supported", info.roi.width,
-                                 info.roi.height, info.roi.x_offset, info.roi.y_offset));
-  if (info.K[8] == 0.0) throw fieldError(source, "K", "the camera is uncalibrated (K is all zero)");
-
-  Camera cam = Camera::pinhole(static_cast<int>(info.width), static_cast<int>(info.height), info.K[0], info.K[4],
-                               info.K[2], info.K[5]);
-  const std::string& model = info.distortion_model;
-  const bool all_zero = std::all_of(info.D.begin(), info.D.end(), [](double d) { return d == 0.0; });
-  if (model == sensor_msgs::distortion_models::PLUMB_BOB || (model.empty() && info.D.empty())) {
-    if (all_zero) {
-      cam.distortion_model = DistortionModel::kNone;
-    } else {
-      if (info.D.size() != 4 && info.D.size() != 5)
-        throw fieldError(source, "D",
-                         fmt::format("plumb_bob needs 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {}", info.D.size()));
-      cam.distortion_model = DistortionModel::kRadTan;
-      cam.distortion = info.D;
-      if (cam.distortion.size() == 5 && cam.distortion[4] == 0.0) cam.distortion.resize(4);
-    }
-  } else if (model == sensor_msgs::distortion_models::EQUIDISTANT) {
-    if (info.D.size() != 4)
-      throw fieldError(source, "D",
-                       fmt::format("equidistant needs 4 coefficients (k1 k2 k3 k4), got {}", info.D.size()));
-    if (all_zero) {
-      cam.distortion_model = DistortionModel::kNone;
-    } else {
-      cam.distortion_model = DistortionModel::kEquidistant;
-      cam.distortion = info.D;
-    }
-  } else {
-    throw fieldError(source, "distortion_model",
-                     fmt::format("'{}' is not supported (use plumb_bob or equidistant)", model));
-  }
-  cam.validate(source);
-  return cam;
+  return cameraFromCameraInfo(info, source);
 }
 
 geometry_msgs::Pose toPose(const SE3& T) {

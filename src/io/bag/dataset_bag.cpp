@@ -44,6 +44,7 @@
 #include "../image_header.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/io/bag.h"
+#include "nerfslam/io/camera_info.h"
 #include "nerfslam/io/image_io.h"
 
 namespace nerfslam {
@@ -111,65 +112,6 @@ SE3 checkedPose(double tx, double ty, double tz, double qx, double qy, double qz
   if (n == 0.0) fail("{}: field 'pose.orientation': the quaternion is zero", where);
   if (std::abs(n - 1.0) > 1e-3) fail("{}: field 'pose.orientation': not a unit quaternion (norm {:.6g})", where, n);
   return SE3(Eigen::Quaterniond(qw / n, qx / n, qy / n, qz / n), Eigen::Vector3d(tx, ty, tz));
-}
-
-// sensor_msgs/CameraInfo -> Camera (the checks of apps/ros/conversions.cpp's fromCameraInfo; the
-// library cannot include the ROS layer).
-Camera cameraFromInfo(const sensor_msgs::CameraInfo& info, const std::string& source) {
-  if (info.width == 0 || info.height == 0 || info.width > kMaxSide || info.height > kMaxSide)
-    throw fieldError(source, "width/height",
-                     fmt::format("image size {}x{} is empty or too large", info.width, info.height));
-  if (info.binning_x > 1 || info.binning_y > 1)
-    throw fieldError(source, "binning", fmt::format("binning {}x{} is not supported", info.binning_x, info.binning_y));
-  const bool full_roi =
-      (info.roi.width == 0 && info.roi.height == 0) || (info.roi.x_offset == 0 && info.roi.y_offset == 0 &&
-                                                        info.roi.width == info.width && info.roi.height == info.height);
-  if (!full_roi) throw fieldError(source, "roi", "a region of interest is not supported");
-  if (info.K[8] == 0.0) throw fieldError(source, "K", "the camera is uncalibrated (K is all zero)");
-  Camera cam = Camera::pinhole(static_cast<int>(info.width), static_cast<int>(info.height), info.K[0], info.K[4],
-                               info.K[2], info.K[5]);
-  const bool all_zero = std::all_of(info.D.begin(), info.D.end(), [](double d) { return d == 0.0; });
-  const std::string& model = info.distortion_model;
-  if (model == "plumb_bob" || (model.empty() && info.D.empty())) {
-    if (!all_zero) {
-      if (info.D.size() != 4 && info.D.size() != 5)
-        throw fieldError(source, "D",
-                         fmt::format("plumb_bob needs 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {}", info.D.size()));
-      cam.distortion_model = DistortionModel::kRadTan;
-      cam.distortion = info.D;
-      if (cam.distortion.size() == 5 && cam.distortion[4] == 0.0) cam.distortion.resize(4);
-    }
-  } else if (model == "equidistant") {
-    if (info.D.size() != 4)
-      throw fieldError(source, "D", fmt::format("equidistant needs 4 coefficients, got {}", info.D.size()));
-    if (!all_zero) {
-      cam.distortion_model = DistortionModel::kEquidistant;
-      cam.distortion = info.D;
-    }
-  } else {
-    throw fieldError(source, "distortion_model",
-                     fmt::format("'{}' is not supported (plumb_bob or equidistant)", cutForMessage(model)));
-  }
-  cam.validate(source);
-  return cam;
-}
-
-sensor_msgs::CameraInfo cameraInfo(const Camera& camera) {
-  sensor_msgs::CameraInfo info;
-  info.width = static_cast<uint32_t>(camera.width);
-  info.height = static_cast<uint32_t>(camera.height);
-  if (camera.distortion_model == DistortionModel::kEquidistant) {
-    info.distortion_model = "equidistant";
-    info.D = camera.distortion;
-  } else {
-    info.distortion_model = "plumb_bob";
-    info.D = camera.distortion;
-    info.D.resize(5, 0.0);
-  }
-  info.K = {camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0};
-  info.R = {1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0};
-  info.P = {camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0};
-  return info;
 }
 
 // Channels of a raw encoding we read; 0 for a 16-bit or float one (refused with their own
@@ -481,7 +423,7 @@ class BagDataset : public Dataset {
       rosbag::View view(bag_, rosbag::TopicQuery(topic));
       noteReading(topic, 0);
       for (const rosbag::MessageInstance& m : view)
-        return cameraFromInfo(*instantiate<sensor_msgs::CameraInfo>(m, source), source);
+        return cameraFromCameraInfo(*instantiate<sensor_msgs::CameraInfo>(m, source), source);
     } catch (const Error&) {
       throw;
     } catch (const std::exception& e) {
@@ -634,7 +576,7 @@ void writeDatasetBag(const Dataset& ds, const fs::path& out, const BagWriteOptio
     } catch (const std::exception& e) {
       fail("{}: cannot write the bag ({})", out.string(), e.what());
     }
-    const sensor_msgs::CameraInfo info0 = cameraInfo(ds.camera());
+    const sensor_msgs::CameraInfo info0 = cameraInfoFromCamera<sensor_msgs::CameraInfo>(ds.camera());
     // rosbag refuses a message time before ros::TIME_MIN (1 ns); the header keeps the true stamp.
     auto bagTime = [](const ros::Time& t) { return std::max(t, ros::TIME_MIN); };
     const ImageMode mode = enc == "mono8" ? ImageMode::kGray : ImageMode::kColor;
