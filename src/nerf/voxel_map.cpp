@@ -400,21 +400,30 @@ Eigen::AlignedBox3d observedBounds(const DensitySource& source, const std::vecto
 VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamera>& views,
                        const VoxelMapOptions& options) {
   validate(options);
-  VoxelMapper mapper(options, observedBounds(source, views, options));
+  return buildVoxelMap(source, views, options, observedBounds(source, views, options));
+}
+
+VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamera>& views,
+                       const VoxelMapOptions& options, const Eigen::AlignedBox3d& bounds) {
+  validate(options);
+  VoxelMapper mapper(options, bounds);
   mapper.updateDensity(source, -1);
   mapper.carve(views);
   return mapper.map();
 }
 
 double fittingResolution(const DensitySource& source, const std::vector<PosedCamera>& views,
-                         const VoxelMapOptions& options, int max_doublings) {
+                         const VoxelMapOptions& options, int max_doublings, Eigen::AlignedBox3d* observed) {
   validate(options);
   VoxelMapOptions o = options;
   for (int k = 0; k <= max_doublings; ++k, o.resolution *= 2) {
     VoxelMapOptions coarse = o;
     coarse.resolution = 4 * o.resolution;
     if (!mapSize(voxelMapBounds(source, views, o.resolution), coarse).fits) continue;
-    if (mapSize(observedBounds(source, views, o), o).fits) return o.resolution;
+    const Eigen::AlignedBox3d seen = observedBounds(source, views, o);
+    if (!mapSize(seen, o).fits) continue;
+    if (observed) *observed = seen;
+    return o.resolution;
   }
   return options.resolution;  // none fits: buildVoxelMap at the resolution asked for says how large it would be
 }

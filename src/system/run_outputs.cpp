@@ -352,11 +352,13 @@ void writeOccupancyOutputs(const nerf::NerfModel& model, const Camera& cam, cons
     // A street mapped at a room's resolution would need gigabytes: coarsen (x2 at a time) until it
     // fits in vo.max_memory_mb, and say so.
     const double requested = vo.resolution;
-    vo.resolution = nerf::fittingResolution(src, views, vo);
+    Eigen::AlignedBox3d observed;  // stays empty when no resolution fits: buildVoxelMap then says why
+    vo.resolution = nerf::fittingResolution(src, views, vo, 8, &observed);
     if (vo.resolution != requested)
       spdlog::warn("occupancy map: {} units per voxel would exceed {} MB for this map; written at {} ({}x coarser)",
                    requested, vo.max_memory_mb, vo.resolution, vo.resolution / requested);
-    const nerf::VoxelMap map = nerf::buildVoxelMap(src, views, vo);
+    const nerf::VoxelMap map =
+        observed.isEmpty() ? nerf::buildVoxelMap(src, views, vo) : nerf::buildVoxelMap(src, views, vo, observed);
     nerf::writeOctomapFiles(map, out / "occupancy.bt", metres_per_unit, "nerf/model.nerf");
     addRunOutput(rep, "occupancy.bt");
     nerf::saveOctomap(map, out / "occupancy.ot");

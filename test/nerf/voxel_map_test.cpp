@@ -229,6 +229,13 @@ TEST(VoxelMap, FittingResolutionCoarsensUntilTheMapFitsItsMemory) {
   fit.resolution = r;
   const VoxelMap m = buildVoxelMap(analyticSource(), ringViews(), fit);
   EXPECT_GT(m.count(VoxelMap::kOccupied), 0u);
+  // The bounds it found make the same map without a second coarse pass.
+  Eigen::AlignedBox3d observed;
+  EXPECT_EQ(fittingResolution(analyticSource(), ringViews(), o, 8, &observed), r);
+  const VoxelMap again = buildVoxelMap(analyticSource(), ringViews(), fit, observed);
+  EXPECT_EQ(again.dims, m.dims);
+  EXPECT_EQ(again.origin, m.origin);
+  EXPECT_EQ(again.state, m.state);
   EXPECT_LE(double(m.size()) * 41, 5e6);
   // One step finer would not have fitted.
   fit.resolution = r / 2;

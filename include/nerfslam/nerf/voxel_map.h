@@ -154,13 +154,18 @@ Eigen::AlignedBox3d observedBounds(const DensitySource& source, const std::vecto
 // Everything at once: observedBounds, density, carving.
 VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamera>& views,
                        const VoxelMapOptions& options);
+// The same over bounds already found (observedBounds at options.resolution, e.g. by fittingResolution).
+VoxelMap buildVoxelMap(const DensitySource& source, const std::vector<PosedCamera>& views,
+                       const VoxelMapOptions& options, const Eigen::AlignedBox3d& bounds);
 
 // The finest of options.resolution * 2^k (k = 0..max_doublings) at which buildVoxelMap fits in
 // options.max_memory_mb (its coarse pass over voxelMapBounds and the map over the observed bounds);
 // options.resolution itself when none does. For maps whose extent is not known in advance (a street
-// run at the resolution of a room); an explicit resolution should be refused instead.
+// run at the resolution of a room); an explicit resolution should be refused instead. *observed, when
+// given and a resolution fits: its observedBounds, for buildVoxelMap (the coarse pass is not repeated).
 double fittingResolution(const DensitySource& source, const std::vector<PosedCamera>& views,
-                         const VoxelMapOptions& options, int max_doublings = 8);
+                         const VoxelMapOptions& options, int max_doublings = 8,
+                         Eigen::AlignedBox3d* observed = nullptr);
 
 // OctoMap files (liboctomap): .bt (maximum-likelihood tree, free/occupied bits) or .ot (full tree with
 // the log-odds), by extension; written atomically. octovis and every OctoMap tool read them.
