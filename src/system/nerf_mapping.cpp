@@ -298,6 +298,7 @@ void NerfMapping::stepOnce() {
     std::lock_guard<std::mutex> s(stats_mutex_);
     stats_.steps = step_offset_ + trainer_->steps();
     stats_.samples += st.samples;
+    stats_.samples_composited += st.samples_composited;
     stats_.rays += st.rays;
     stats_.depth_rays += st.depth_rays;
     stats_.rollbacks = trainer_->rollbacks();

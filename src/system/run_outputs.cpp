@@ -227,6 +227,7 @@ TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& gt, cons
 void reportNerfStats(const NerfMappingStats& st, nlohmann::json& rep) {
   rep["nerf_steps"] = st.steps;
   rep["nerf_samples"] = st.samples;
+  rep["nerf_samples_composited"] = st.samples_composited;
   rep["nerf_rays"] = st.rays;
   rep["nerf_depth_rays"] = st.depth_rays;
   rep["nerf_train_seconds"] = st.train_seconds;

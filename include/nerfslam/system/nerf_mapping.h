@@ -241,6 +241,7 @@ struct NerfMappingOptions {
 struct NerfMappingStats {
   int64_t steps = 0;
   int64_t samples = 0;
+  int64_t samples_composited = 0;  // of those, before their ray's early termination (coloured)
   int64_t rays = 0;
   int64_t depth_rays = 0;  // of those, drawn through a map point (sparse depth)
   int64_t rollbacks = 0;
