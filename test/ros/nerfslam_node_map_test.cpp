@@ -76,9 +76,9 @@ MapFixture& setup() {
   s.config = nerfslam::test::sourceDir() / "config/system/synthetic.yaml";
   s.map_dir = s.tmp / "map";
   const auto t0 = ros::WallTime::now();
-  const auto slam = nerfslam::test::runCli("run --no-nerf --dataset '" + s.room.dir.string() + "' --config '" +
-                                           s.config.string() + "' --out '" + (s.tmp / "slam").string() +
-                                           "' --save-map '" + s.map_dir.string() + "'");
+  const auto slam =
+      nerfslam::test::runCli("run --no-nerf --dataset '" + s.room.dir.string() + "' --config '" + s.config.string() +
+                             "' --out '" + (s.tmp / "slam").string() + "' --save-map '" + s.map_dir.string() + "'");
   if (slam.exit_code != 0) {
     ADD_FAILURE() << slam.output;
     return s;
@@ -95,10 +95,11 @@ MapFixture& setup() {
   s.cli_ate_rmse = ate.ape.rmse;
   s.cli_ate_percent = ate.ape_rmse_percent;
   s.cli_tracked = ate.matched;
-  std::printf("map: %zu keyframes (CLI, %d frames); CLI --localize: %zu frames matched, ATE %.5f m = %.3f %% "
-              "(%.1f s for both runs)\n",
-              s.map_keyframes, kFrames + 1, s.cli_tracked, s.cli_ate_rmse, s.cli_ate_percent,
-              (ros::WallTime::now() - t0).toSec());
+  std::printf(
+      "map: %zu keyframes (CLI, %d frames); CLI --localize: %zu frames matched, ATE %.5f m = %.3f %% "
+      "(%.1f s for both runs)\n",
+      s.map_keyframes, kFrames + 1, s.cli_tracked, s.cli_ate_rmse, s.cli_ate_percent,
+      (ros::WallTime::now() - t0).toSec());
   s.ok = true;
   return s;
 }
@@ -153,28 +154,29 @@ TEST(NerfslamNodeMap, LocalizesInTheSavedMapFromRoslaunch) {
   std::mutex mutex;
   nerfslam::Trajectory poses;
   size_t path_poses = 0;
-  ros::Subscriber pose_sub =
-      nh.subscribe<geometry_msgs::PoseStamped>("/nerfslam_node/pose", 500, [&](const geometry_msgs::PoseStampedConstPtr& m) {
+  ros::Subscriber pose_sub = nh.subscribe<geometry_msgs::PoseStamped>(
+      "/nerfslam_node/pose", 500, [&](const geometry_msgs::PoseStampedConstPtr& m) {
         const auto& p = m->pose;
         std::lock_guard<std::mutex> lock(mutex);
         poses.push_back({m->header.stamp.toSec(),
                          SE3(Eigen::Quaterniond(p.orientation.w, p.orientation.x, p.orientation.y, p.orientation.z),
                              Eigen::Vector3d(p.position.x, p.position.y, p.position.z))});
       });
-  ros::Subscriber path_sub = nh.subscribe<nav_msgs::Path>("/nerfslam_node/path", 5, [&](const nav_msgs::PathConstPtr& m) {
-    std::lock_guard<std::mutex> lock(mutex);
-    path_poses = m->poses.size();
-  });
+  ros::Subscriber path_sub =
+      nh.subscribe<nav_msgs::Path>("/nerfslam_node/path", 5, [&](const nav_msgs::PathConstPtr& m) {
+        std::lock_guard<std::mutex> lock(mutex);
+        path_poses = m->poses.size();
+      });
   DiagnosticsValues diag(nh, "nerfslam_node");
   // The sparse SLAM (the map has no NeRF model); set before roslaunch, which keeps it.
   ros::param::del("/nerfslam_node");
   ros::param::set("/nerfslam_node/nerf", false);
   const std::string log = logPath("roslaunch");
-  ChildProcess launch({"roslaunch", "nerfslam", "nerfslam.launch", "image:=/maploc/image",
-                       "camera_info:=/maploc/camera_info", "map:=" + s.map_dir.string(), "map_mode:=localize",
-                       "config:=" + s.config.string(), "queue_size:=200", "wait_for_mapping:=true",
-                       "map_frame:=maploc_map", "camera_frame:=maploc_camera"},
-                      log);
+  ChildProcess launch(
+      {"roslaunch", "nerfslam", "nerfslam.launch", "image:=/maploc/image", "camera_info:=/maploc/camera_info",
+       "map:=" + s.map_dir.string(), "map_mode:=localize", "config:=" + s.config.string(), "queue_size:=200",
+       "wait_for_mapping:=true", "map_frame:=maploc_map", "camera_frame:=maploc_camera"},
+      log);
   ASSERT_TRUE(waitFor(40.0, [&] { return diag.count() > 0; })) << readText(log);
   EXPECT_EQ(diag.str("map mode"), "localize");
   auto cam = play("maploc_camera", "/maploc", kFrames);
@@ -247,6 +249,33 @@ TEST(NerfslamNodeMap, ExtendsAndSavesOnShutdown) {
   EXPECT_EQ(double(loaded.map->numKeyframes()), keyframes);
   std::printf("~save_on_shutdown (extend): stopped in %.2f s, saved %zu keyframes, %zu points (the map had %zu)\n",
               stop_s, loaded.map->numKeyframes(), loaded.map->numPoints(), s.map_keyframes);
+
+  // A shutdown that takes longer than ~save_on_shutdown_timeout (1 ms: the save alone takes about 0.3
+  // s): exit status 1 with the reason, and the folder keeps the map saved above.
+  const std::string log2 = logPath("save_timeout_node");
+  ros::param::del("/map_timeout_node");
+  ChildProcess slow(
+      {NERFSLAM_NODE_PATH, "__name:=map_timeout_node", "_nerf:=false", "_queue_size:=200",
+       "_config:=" + s.config.string(), "_map:=" + s.map_dir.string(), "_map_mode:=extend", "_save_on_shutdown:=true",
+       "_save_on_shutdown_dir:=" + saved.string(), "_save_on_shutdown_timeout:=0.001", "_map_frame:=maptimeout_map",
+       "_camera_frame:=maptimeout_camera", "image:=/maptimeout/image"},
+      log2);
+  DiagnosticsValues diag2(nh, "map_timeout_node");
+  ASSERT_TRUE(waitFor(30.0, [&] { return diag2.count() > 0; })) << readText(log2);
+  auto cam2 = play("maptimeout_camera", "/maptimeout", 20);
+  EXPECT_TRUE(waitFor(30.0, [&] { return diag2.num("frames tracked") >= 10; }));
+  const int status2 = slow.stop(SIGINT, 30.0);
+  const std::string out2 = readText(log2);
+  ASSERT_TRUE(WIFEXITED(status2)) << out2;
+  EXPECT_EQ(WEXITSTATUS(status2), 1) << out2;
+  EXPECT_NE(out2.find("~save_on_shutdown_timeout (0.0 s) reached before the map was saved into " + saved.string()),
+            std::string::npos)
+      << out2;
+  const nerfslam::LoadedMap kept = nerfslam::loadMapFolder(saved, s.camera);
+  EXPECT_EQ(kept.generation, loaded.generation);
+  EXPECT_EQ(kept.map->numKeyframes(), loaded.map->numKeyframes());
+  std::printf("~save_on_shutdown_timeout 1 ms: exit %d; the folder keeps generation %lu\n", WEXITSTATUS(status2),
+              static_cast<unsigned long>(kept.generation));
 }
 
 TEST(NerfslamNodeMap, BadMapInputIsFatalAndLeavesTheMap) {
@@ -299,8 +328,8 @@ TEST(NerfslamNodeMap, BadMapInputIsFatalAndLeavesTheMap) {
     const std::string name = "badmap_" + c.name;
     const std::string log = logPath(name);
     ros::param::del("/" + name);
-    std::vector<std::string> argv = {NERFSLAM_NODE_PATH,     "__name:=" + name, "_nerf:=false",
-                                     "_map:=" + c.map.string(), "image:=/" + name + "/image"};
+    std::vector<std::string> argv = {NERFSLAM_NODE_PATH, "__name:=" + name, "_nerf:=false", "_map:=" + c.map.string(),
+                                     "image:=/" + name + "/image"};
     argv.insert(argv.end(), c.args.begin(), c.args.end());
     const auto t0 = ros::WallTime::now();
     ChildProcess node(argv, log);
@@ -312,10 +341,12 @@ TEST(NerfslamNodeMap, BadMapInputIsFatalAndLeavesTheMap) {
     const std::string out = readText(log);
     EXPECT_EQ(code, 1) << out;
     std::string fatal_line;
-    for (size_t pos = out.find("FATAL"); pos != std::string::npos && fatal_line.empty(); pos = out.find("FATAL", pos + 1))
+    for (size_t pos = out.find("FATAL"); pos != std::string::npos && fatal_line.empty();
+         pos = out.find("FATAL", pos + 1))
       fatal_line = out.substr(pos, out.find('\n', pos) - pos);
     EXPECT_FALSE(fatal_line.empty()) << out;
-    for (const auto& e : c.expected) EXPECT_NE(fatal_line.find(e), std::string::npos) << "'" << e << "' not in: " << out;
+    for (const auto& e : c.expected)
+      EXPECT_NE(fatal_line.find(e), std::string::npos) << "'" << e << "' not in: " << out;
     EXPECT_EQ(out.find("Segmentation"), std::string::npos) << out;
     if (exists) EXPECT_TRUE(snapshot(c.map) == before) << "the map folder " << c.map << " was changed";
     EXPECT_FALSE(!exists && fs::exists(c.map)) << c.map << " was created";
