@@ -199,6 +199,11 @@ class NerfslamNode {
     if (!start_map_->map || start_map_->map->numKeyframes() == 0)
       throw nerfslam::Error(what + ": the map has no keyframes");
     map_keyframes_ = start_map_->map->numKeyframes();
+    if (start_map_->nerf_model && !p_.slam.nerf.enabled)
+      ROS_WARN(
+          "%s has a NeRF model, which this node does not use (%s): a map it saves (~save_map, "
+          "~save_on_shutdown) has none; do not save it over this folder to keep the model",
+          what.c_str(), tracking() ? "tracking_node trains no NeRF" : "~nerf false");
     ROS_INFO("%s: generation %lu, %zu keyframes, %zu points, %s, camera %s, loaded in %.2f s; %s", what.c_str(),
              static_cast<unsigned long>(start_map_->generation), start_map_->map->numKeyframes(),
              start_map_->map->numPoints(),
@@ -266,6 +271,13 @@ class NerfslamNode {
   // longer prints once ros::shutdown() has run.
   void saveOnShutdown() {
     const std::filesystem::path dir = saveOnShutdownDir();
+    std::error_code ec;
+    if (map_mode_ == nerfslam::MapMode::kLocalize && localization_only_ &&
+        std::filesystem::equivalent(dir, map_dir_, ec)) {
+      std::printf("shutdown: the map in %s is not saved again: ~map_mode localize left it as it was\n", dir.c_str());
+      std::fflush(stdout);
+      return;
+    }
     {
       std::lock_guard<std::mutex> lock(system_mutex_);
       if (system_) system_->finish(false);
