@@ -14,8 +14,7 @@ namespace {
 // One step's points: positions in both models' NeRF spaces, and directions.
 struct DistillBatch {
   std::vector<float> p_from, p_to, dir;
-  std::vector<uint8_t> inside;   // the point is inside the student's box (others teach nothing)
-  std::vector<uint8_t> teacher;  // ... and inside the teacher's (outside it, the target is empty space)
+  std::vector<uint8_t> inside;  // the point is inside the student's box (others teach nothing)
 };
 
 // Draws the points of every step from one generator and one set of distributions (the normal
@@ -24,46 +23,30 @@ class PointSampler {
  public:
   explicit PointSampler(uint64_t seed) : rng_(seed ^ 0x64697374ull), cell_(0, OccupancyGrid::kRes - 1) {}
 
-  // Three points in four in one of from's cascades, drawn uniformly (cascade m is the cube of side
-  // 2^m around the unit cube's centre: with aabb_scale > 1 the far scenery lives in the outer ones),
-  // two of them uniform in that cube, one (i % 4 == 1) inside its occupied cells (uniform when 64
-  // tries find no occupied cell). The fourth uniform in one of to's cascades: where it falls outside
-  // from's box the target is empty space (from's rays went through to its background there), so the
-  // student's own initial density does not fog a larger box.
+  // Each point in one of from's cascades, drawn uniformly (cascade m is the cube of side 2^m around
+  // the unit cube's centre: with aabb_scale > 1 the far scenery lives in the outer ones); half the
+  // points uniform in that cube, half (odd indices) inside its occupied cells (uniform when 64 tries
+  // find no occupied cell).
   void draw(const NerfModel& from, const NerfModel& to, int n, DistillBatch* b) {
-    std::uniform_int_distribution<int> cascade_from(0, std::max(1, from.grid->cascades()) - 1);
-    std::uniform_int_distribution<int> cascade_to(0, std::max(1, to.grid->cascades()) - 1);
-    auto inBox = [](const Eigen::Vector3d& q, double aabb_scale) {
-      return ((q.array() - 0.5).abs() <= 0.5 * aabb_scale).all();
-    };
+    std::uniform_int_distribution<int> cascade(0, std::max(1, from.grid->cascades()) - 1);
     for (int i = 0; i < n; ++i) {
-      Eigen::Vector3f p;
-      Eigen::Vector3d pt;
-      if (i % 4 == 3) {
-        const float side = std::ldexp(1.f, cascade_to(rng_));
-        const Eigen::Vector3f q = Eigen::Vector3f::Constant(0.5f) +
-                                  side * Eigen::Vector3f(u01_(rng_) - 0.5f, u01_(rng_) - 0.5f, u01_(rng_) - 0.5f);
-        pt = q.cast<double>();
-        p = from.scene.toNerf(to.scene.toWorld(pt)).cast<float>();
-      } else {
-        const int m = cascade_from(rng_);
-        const float side = std::ldexp(1.f, m);
-        p = Eigen::Vector3f::Constant(0.5f) +
-            side * Eigen::Vector3f(u01_(rng_) - 0.5f, u01_(rng_) - 0.5f, u01_(rng_) - 0.5f);
-        if (i % 2 == 1) {
-          for (int tries = 0; tries < 64; ++tries) {
-            const int x = cell_(rng_), y = cell_(rng_), z = cell_(rng_);
-            if (!from.grid->occupiedCell(m, x, y, z)) continue;
-            const float c = OccupancyGrid::cellSize(m);
-            p = from.grid->cellCenter(m, x, y, z) +
-                c * Eigen::Vector3f(u01_(rng_) - 0.5f, u01_(rng_) - 0.5f, u01_(rng_) - 0.5f);
-            break;
-          }
+      const int m = cascade(rng_);
+      const float side = std::ldexp(1.f, m);
+      Eigen::Vector3f p = Eigen::Vector3f::Constant(0.5f) +
+                          side * Eigen::Vector3f(u01_(rng_) - 0.5f, u01_(rng_) - 0.5f, u01_(rng_) - 0.5f);
+      if (i % 2 == 1) {
+        for (int tries = 0; tries < 64; ++tries) {
+          const int x = cell_(rng_), y = cell_(rng_), z = cell_(rng_);
+          if (!from.grid->occupiedCell(m, x, y, z)) continue;
+          const float c = OccupancyGrid::cellSize(m);
+          p = from.grid->cellCenter(m, x, y, z) +
+              c * Eigen::Vector3f(u01_(rng_) - 0.5f, u01_(rng_) - 0.5f, u01_(rng_) - 0.5f);
+          break;
         }
-        pt = to.scene.toNerf(from.scene.toWorld(p.cast<double>()));
       }
-      b->inside[size_t(i)] = inBox(pt, to.scene.aabb_scale) ? 1 : 0;
-      b->teacher[size_t(i)] = inBox(p.cast<double>(), from.scene.aabb_scale) ? 1 : 0;
+      const Eigen::Vector3d pt = to.scene.toNerf(from.scene.toWorld(p.cast<double>()));
+      const double half = 0.5 * to.scene.aabb_scale;
+      b->inside[size_t(i)] = ((pt.array() - 0.5).abs() <= half).all() ? 1 : 0;
       Eigen::Vector3f d(gauss_(rng_), gauss_(rng_), gauss_(rng_));
       d /= std::max(d.norm(), 1e-6f);
       for (int a = 0; a < 3; ++a) {
@@ -94,7 +77,7 @@ double distill(const NerfModel& from, NerfModel& to, const DistillOptions& optio
   auto ws = to.field->makeWorkspace();
   auto grads = to.field->makeGradients();
   DistillBatch b{std::vector<float>(3 * un), std::vector<float>(3 * un), std::vector<float>(3 * un),
-                 std::vector<uint8_t>(un), std::vector<uint8_t>(un)};
+                 std::vector<uint8_t>(un)};
   std::vector<float> q_from(3 * un), q_to(3 * un), sig_f(un), rgb_f(3 * un), sig_t(un), rgb_t(3 * un), d_sig(un),
       d_rgb(3 * un);
   double loss = 0;
@@ -103,8 +86,6 @@ double distill(const NerfModel& from, NerfModel& to, const DistillOptions& optio
     from.toFieldCoords(b.p_from.data(), un, q_from.data());
     to.toFieldCoords(b.p_to.data(), un, q_to.data());
     from.field->query(q_from.data(), b.dir.data(), un, sig_f.data(), rgb_f.data());
-    for (size_t i = 0; i < un; ++i)
-      if (!b.teacher[i]) sig_f[i] = 0.f;  // beyond the teacher's box: empty
     to.field->forward(ws, q_to.data(), b.dir.data(), un, sig_t.data(), rgb_t.data());
     loss = 0;
     for (int i = 0; i < n; ++i) {

@@ -4,10 +4,8 @@
 // to a field in a new box rather than be dropped.
 //
 // Each step regresses the student's log-density and, where the teacher is dense, its colour, at
-// random points of the teacher's box, every cascade alike (two thirds uniform, a third inside its
-// occupied cells), and at a quarter of the points drawn in the student's box, where outside the
-// teacher's the target is empty space (its rays went on to the background there), with random view
-// directions; points outside the student's box are skipped. Densities are per NeRF-space
+// random points of the teacher's box, every cascade alike (half uniform, half inside its occupied
+// cells), with random view directions; points outside the student's box are skipped. Densities are per NeRF-space
 // length, so the target is converted to the student's units: sigma_to = sigma_from * scale_from / scale_to. Below a
 // floor (log 0.1) any density counts as empty space; the colour is weighted by 1 - exp(-0.01 sigma_to).
 #include <cstdint>
