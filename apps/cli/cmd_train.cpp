@@ -1,7 +1,6 @@
 // `nerfslam train`: trains a NeRF on a transforms.json dataset (NeRF-synthetic / instant-ngp layout),
 // holding out every Nth view for testing. Writes model.nerf, report.json, psnr_curve.csv and
 // side-by-side test renders (render | ground truth) into --out, all atomically.
-#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -18,6 +17,7 @@
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/options_yaml.h"
+#include "nerfslam/core/statistics.h"
 #include "nerfslam/core/stop_signal.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
@@ -124,19 +124,8 @@ Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const 
     cv::Mat pred = cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0);
     e.psnr += psnr(pred, gt, 1.0);
     if (with_ssim) e.ssim += ssim(pred, gt, 1.0);
-    if (depths && i < depths->size() && !(*depths)[i].empty()) {
-      std::vector<float> rel;
-      const cv::Mat& truth = (*depths)[i];
-      for (int y = 0; y < truth.rows; ++y)
-        for (int x = 0; x < truth.cols; ++x) {
-          const float t = truth.at<float>(y, x), d = r.depth.at<float>(y, x);
-          if (t > 0.f && d > 0.f) rel.push_back(std::abs(d - t) / t);
-        }
-      if (!rel.empty()) {
-        std::nth_element(rel.begin(), rel.begin() + long(rel.size() / 2), rel.end());
-        depth_errors.push_back(rel[rel.size() / 2]);
-      }
-    }
+    if (depths && i < depths->size() && !(*depths)[i].empty())
+      if (const auto err = depthMedianAbsRel(r.depth, (*depths)[i])) depth_errors.push_back(*err);
     if (renders) {
       cv::Mat side;
       cv::hconcat(nerf::toBgr8(pred), nerf::toBgr8(gt), side);
@@ -145,10 +134,7 @@ Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const 
   }
   e.psnr /= double(count);
   e.ssim /= double(count);
-  if (!depth_errors.empty()) {
-    std::nth_element(depth_errors.begin(), depth_errors.begin() + long(depth_errors.size() / 2), depth_errors.end());
-    e.depth_error = depth_errors[depth_errors.size() / 2];
-  }
+  if (!depth_errors.empty()) e.depth_error = median(std::move(depth_errors));
   return e;
 }
 

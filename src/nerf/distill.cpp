@@ -45,8 +45,9 @@ class PointSampler {
         }
       }
       const Eigen::Vector3d pt = to.scene.toNerf(from.scene.toWorld(p.cast<double>()));
-      const double half = 0.5 * to.scene.aabb_scale;
-      b->inside[size_t(i)] = ((pt.array() - 0.5).abs() <= half).all() ? 1 : 0;
+      const Eigen::Vector3f q = pt.cast<float>();
+      b->inside[size_t(i)] =
+          (q.array() >= to.scene.aabbMin().array()).all() && (q.array() <= to.scene.aabbMax().array()).all() ? 1 : 0;
       Eigen::Vector3f d(gauss_(rng_), gauss_(rng_), gauss_(rng_));
       d /= std::max(d.norm(), 1e-6f);
       for (int a = 0; a < 3; ++a) {
