@@ -371,7 +371,9 @@ TEST(NerfslamNodeMap, BadMapInputIsFatalAndLeavesTheMap) {
     for (const auto& e : c.expected)
       EXPECT_NE(fatal_line.find(e), std::string::npos) << "'" << e << "' not in: " << out;
     EXPECT_EQ(out.find("Segmentation"), std::string::npos) << out;
-    if (exists) EXPECT_TRUE(snapshot(c.map) == before) << "the map folder " << c.map << " was changed";
+    if (exists) {
+      EXPECT_TRUE(snapshot(c.map) == before) << "the map folder " << c.map << " was changed";
+    }
     EXPECT_FALSE(!exists && fs::exists(c.map)) << c.map << " was created";
     std::printf("bad input %s: exit %d after %.2f s: %s\n", c.name.c_str(), code, took, fatal_line.c_str());
   }
