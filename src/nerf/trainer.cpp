@@ -278,7 +278,9 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
       for (float& b : bg) b = pick.u01(ts.rng);
     const RayGenerator gen(views_[vi].camera, step_poses_[vi], model_.scene);
     const Ray ray = gen.ray(px + ju, py + jv);
-    const bool learned_bg = model_.background && !im.has_alpha;
+    // Before background_start_steps the view's rays get random backgrounds as views with alpha do:
+    // the target does not depend on them only where the field is opaque, so the walls grow first.
+    const bool learned_bg = model_.background && !im.has_alpha && step_ >= opt_.background_start_steps;
     RayMarcher marcher(ray, *model_.grid, model_.scene, plan.march, jt);
     const int room = std::min(opt_.max_samples_per_ray, plan.budget - total - used);
     const int n = marcher.next(room, ts.pos.data() + 3 * used, ts.t.data() + used, ts.dt.data() + used);
@@ -518,7 +520,10 @@ bool Trainer::applyGradients(int64_t rays, StepStats* stats) {
         g[i] = 0.f;
       }
     }
-    model_.background->step(sum, float(learningRate()), model_.field->config().adam, scale);
+    if (step_ >= opt_.background_start_steps)
+      model_.background->step(sum, float(learningRate()), model_.field->config().adam, scale);
+    else
+      std::fill(sum, sum + n, 0.f);
   }
   stepAppearance();
   stats->times.optimizer = since(t0);

@@ -180,6 +180,7 @@ TEST(Background, TrainingOnOpaqueViewsRecoversAKnownBackground) {
   // The background map is compared with the truth below: with per-view appearance on, its colours
   // would be those of the views' mean appearance, which this scene does not pin to identity.
   to.appearance = false;
+  to.background_start_steps = 0;  // learned from the first step (the default waits)
   Trainer trainer(model, train, to);
   ASSERT_TRUE(model.background) << "opaque views create the learned background";
   EXPECT_EQ(model.background->rows(), 16);

@@ -304,7 +304,12 @@ TEST(NerfMapping, StartsAgainWhenTheSparseMapIsReset) {
 
 TEST(NerfMapping, RefitKeepsWhatWasLearned) {
   Fixture fx(8);
-  NerfMapping nm(*fx.map, fx.bus, testOptions());
+  // The field's distillation alone: with the learned background (carried over unchanged) a field
+  // one step old already renders its grey (16.1 dB here), and the gain measured is smaller by it;
+  // the distilled field loses the same ~4 dB of the trained one's either way (26.0 -> 22.0).
+  NerfMappingOptions o = testOptions();
+  o.train.learned_background = false;
+  NerfMapping nm(*fx.map, fx.bus, o);
   for (const auto& ev : fx.events) fx.bus.publish(ev);
   nm.stop();
   nm.trainFor(0, 1);
