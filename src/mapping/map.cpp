@@ -625,27 +625,6 @@ bool Map::refreshLocalMap(TrackingLocalMap* m, bool wait) const {
   return true;
 }
 
-DescriptorVoteTable Map::descriptorVoteTable() const {
-  auto lock = lockShared(mutex_);
-  std::vector<PointId> ids;
-  ids.reserve(points_.size());
-  for (const auto& [id, p] : points_) ids.push_back(id);
-  std::sort(ids.begin(), ids.end());
-  DescriptorVoteTable table;
-  table.descriptors.reserve(ids.size() * DescriptorVoteTable::kDescriptorBytes);
-  table.observer_begin.reserve(ids.size() + 1);
-  std::vector<KeyframeId> observed_by;
-  for (PointId id : ids) {
-    const MapPoint& p = points_.at(id);
-    if (p.descriptor.empty() || p.descriptor.total() * p.descriptor.elemSize() != DescriptorVoteTable::kDescriptorBytes)
-      continue;
-    observed_by.clear();
-    for (const auto& [kf, idx] : p.observations) observed_by.push_back(kf);
-    table.add(p.descriptor.ptr<uint8_t>(), observed_by);
-  }
-  return table;
-}
-
 std::vector<RelocalizationCandidate> Map::relocalizationCandidates(const std::vector<KeyframeId>& order,
                                                                    size_t max_candidates) const {
   auto lock = lockShared(mutex_);
