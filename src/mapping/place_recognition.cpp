@@ -110,9 +110,8 @@ std::vector<KeyframeId> PlaceRecognition::relocalizationCandidates(const Map& ma
     groups.push_back(g);
   }
   // 4. The groups above min_group_score_ratio x the best, best first, each keyframe once.
-  std::sort(groups.begin(), groups.end(), [](const Group& a, const Group& b) {
-    return a.acc != b.acc ? a.acc > b.acc : a.best < b.best;
-  });
+  std::sort(groups.begin(), groups.end(),
+            [](const Group& a, const Group& b) { return a.acc != b.acc ? a.acc > b.acc : a.best < b.best; });
   std::vector<KeyframeId> out;
   for (const Group& g : groups) {
     if (out.size() >= q.max_candidates || g.acc < q.min_group_score_ratio * best_acc) break;

@@ -30,10 +30,10 @@
 namespace nerfslam {
 
 struct RelocalizationQuery {
-  size_t max_candidates = 5;             // groups kept, best first
-  double min_common_words_ratio = 0.8;   // of the most words a keyframe shares with the frame
-  int covisible_keyframes = 10;          // best covisible keyframes a score is accumulated over
-  double min_group_score_ratio = 0.75;   // of the best group's accumulated score
+  size_t max_candidates = 5;            // groups kept, best first
+  double min_common_words_ratio = 0.8;  // of the most words a keyframe shares with the frame
+  int covisible_keyframes = 10;         // best covisible keyframes a score is accumulated over
+  double min_group_score_ratio = 0.75;  // of the best group's accumulated score
 };
 
 class PlaceRecognition {
