@@ -412,6 +412,8 @@ bool SlamSystem::relocalizeFrame(const Frame& frame, bool weak_retry, bool local
       relocalize(frame, map_->relocalizationCandidates(choice.keyframes, choice.max_candidates),
                  opt_.tracking.relocalizer, opt_.tracking.tracker.optimizer);
   if (!rl.success) {
+    spdlog::debug("frame {}: relocalisation failed; keyframe-database candidates [{}]: {}", frame.id,
+                  fmt::join(voted, ", "), rl.reason);
     if (!weak_retry)
       rec.message = "lost: " + (res.message.empty() ? std::string("too few inliers") : res.message) +
                     "; relocalisation: " + rl.reason;

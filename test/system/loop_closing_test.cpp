@@ -154,6 +154,11 @@ TEST(LoopClosing, RoomTwoLapsEveryRevisitClosedAndAteCutByThree) {
     EXPECT_LE(g.at("rmse_after_px").get<double>(), g.at("rmse_before_px").get<double>());
   }
   const double ate_on = rep.at("ate_percent_of_path").get<double>();
+  // The poses as tracked, before the corrections (drawn beside the estimate in trajectory.png).
+  const double ate_tracked = rep.at("ate_percent_of_path_as_tracked").get<double>();
+  std::printf("as tracked, before the loop corrections: ATE %.3f %%\n", ate_tracked);
+  EXPECT_GT(ate_tracked, ate_on);
+  EXPECT_TRUE(std::filesystem::exists(ro.out / "trajectory.png"));
   std::printf("loop closing on: %zu closures, ATE %.3f %% (off: %.3f %%)\n", closures.size(), ate_on, ate_off);
   EXPECT_LE(ate_on, ate_off / 3.0);
   EXPECT_LT(ate_on, 1.0);
