@@ -11,11 +11,13 @@
 
 #include <spdlog/spdlog.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "command.h"
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/options_yaml.h"
+#include "nerfslam/core/statistics.h"
 #include "nerfslam/core/stop_signal.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/eval/image_metrics.h"
@@ -43,6 +45,10 @@ struct TrainArgs {
   double eval_interval = 10.0;
   int curve_views = 3;
   int samples_per_step = 1 << 16;
+  // Frames with a depth image (transforms.json depth_path / depth_file_path): at most this many of
+  // its pixels supervise each training view's depth (nerf.train.depth_*); 0: training ignores depth.
+  // Test views' depth images give the report's depth error either way.
+  int depth_points = 1000;
   // A `run --config` file: its nerf.train options (the same keys, docs/options.md) train here too;
   // --threads, --seed and --samples-per-step given on the command line override them.
   std::string config;
@@ -52,12 +58,18 @@ struct TrainArgs {
 struct Split {
   std::vector<nerf::TrainingView> train, test;
   std::vector<std::string> test_names;
+  std::vector<cv::Mat> test_depth;  // per test view: depth at its (downscaled) size, or empty
+  size_t depth_views = 0, depth_points = 0;
 };
 
-Split loadSplit(const TrainArgs& a, double* aabb_scale) {
+Split loadSplit(const TrainArgs& a, nerf::SceneTransform* scene) {
   const std::string spec = "transforms:" + a.transforms;
   auto ds = openDataset(spec);
-  *aabb_scale = ds->aabbScale().value_or(1.0);
+  scene->aabb_scale = ds->aabbScale().value_or(1.0);
+  if (const auto ns = ds->nerfScene()) {
+    scene->scale = ns->scale;
+    scene->offset = ns->offset;
+  }
   Split s;
   for (size_t i = 0; i < ds->size(); ++i) {
     const DatasetFrame f = ds->load(i, ImageMode::kUnchanged);
@@ -65,7 +77,17 @@ Split loadSplit(const TrainArgs& a, double* aabb_scale) {
     if (f.image.depth() != CV_8U)
       throw fieldError(f.path, "image", "only 8-bit images are supported for NeRF training");
     auto v = nerf::makeTrainingView(f.image, ds->camera(), *f.T_world_cam, a.downscale, f.path);
-    if (a.test_every > 0 && i % size_t(a.test_every) == 0) {
+    const bool test = a.test_every > 0 && i % size_t(a.test_every) == 0;
+    const cv::Mat depth = test || a.depth_points > 0 ? ds->loadDepth(i) : cv::Mat();
+    if (!depth.empty() && !test) {
+      v.points = nerf::surfacePointsFromDepth(depth, ds->camera(), *f.T_world_cam, size_t(a.depth_points), f.path);
+      s.depth_points += v.points.size();
+      s.depth_views += v.points.empty() ? 0 : 1;
+    }
+    if (test) {
+      cv::Mat small;
+      if (!depth.empty()) cv::resize(depth, small, cv::Size(v.camera.width, v.camera.height), 0, 0, cv::INTER_NEAREST);
+      s.test_depth.push_back(small);
       s.test.push_back(std::move(v));
       s.test_names.push_back(fs::path(f.path).stem().string());
     } else {
@@ -78,11 +100,15 @@ Split loadSplit(const TrainArgs& a, double* aabb_scale) {
 
 struct Eval {
   double psnr = 0, ssim = 0;
+  // Median over the test views with depth of each view's median |render - truth| / truth (pixels
+  // where both have depth); -1 without depth.
+  double depth_error = -1;
 };
 
 // Test views are rendered with the appearance of their nearest training view (appearance.h).
 Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const std::vector<nerf::TrainingView>& views,
-              size_t count, int threads, bool with_ssim, std::vector<cv::Mat>* renders) {
+              size_t count, int threads, bool with_ssim, std::vector<cv::Mat>* renders,
+              const std::vector<cv::Mat>* depths = nullptr) {
   Eval e;
   count = std::min(count, views.size());
   if (count == 0) return e;
@@ -90,6 +116,7 @@ Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const 
   nerf::RenderOptions ro;
   ro.threads = threads;
   ro.normals = false;
+  std::vector<double> depth_errors;
   for (size_t i = 0; i < count; ++i) {
     const auto r = nerf::renderView(model, views[i].camera, views[i].T_world_cam, ro);
     const nerf::Appearance app = trainer.appearanceNear(views[i].T_world_cam);
@@ -97,6 +124,8 @@ Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const 
     cv::Mat pred = cv::min(cv::max(app.apply(r.rgb), 0.0), 1.0);
     e.psnr += psnr(pred, gt, 1.0);
     if (with_ssim) e.ssim += ssim(pred, gt, 1.0);
+    if (depths && i < depths->size() && !(*depths)[i].empty())
+      if (const auto err = depthMedianAbsRel(r.depth, (*depths)[i])) depth_errors.push_back(*err);
     if (renders) {
       cv::Mat side;
       cv::hconcat(nerf::toBgr8(pred), nerf::toBgr8(gt), side);
@@ -105,6 +134,7 @@ Eval evaluate(const nerf::NerfModel& model, const nerf::Trainer& trainer, const 
   }
   e.psnr /= double(count);
   e.ssim /= double(count);
+  if (!depth_errors.empty()) e.depth_error = median(std::move(depth_errors));
   return e;
 }
 
@@ -112,13 +142,14 @@ int runTrain(const TrainArgs& a) {
   if (a.seconds <= 0 && a.steps <= 0) fail("train: give --seconds or --steps");
   const fs::path out(a.out);
   ensureDirectory(out);
-  double aabb_scale = 1.0;
-  Split split = loadSplit(a, &aabb_scale);
-  spdlog::info("train: {} training and {} test views of {}x{}, aabb_scale {}", split.train.size(), split.test.size(),
-               split.train[0].camera.width, split.train[0].camera.height, aabb_scale);
-
   nerf::SceneTransform scene;
-  scene.aabb_scale = aabb_scale;
+  Split split = loadSplit(a, &scene);
+  spdlog::info("train: {} training and {} test views of {}x{}, aabb_scale {}", split.train.size(), split.test.size(),
+               split.train[0].camera.width, split.train[0].camera.height, scene.aabb_scale);
+  if (split.depth_views > 0)
+    spdlog::info("train: depth from the transforms' depth images: {} points on {} training views", split.depth_points,
+                 split.depth_views);
+
   nerf::NerfModel model = nerf::NerfModel::create(nerf::FieldConfig{}, scene, uint64_t(a.seed));
   nerf::TrainOptions to;
   if (!a.config.empty()) {
@@ -172,7 +203,8 @@ int runTrain(const TrainArgs& a) {
   std::vector<cv::Mat> renders;
   Eval final_eval;
   const bool evaluated = stopRequests() < 2;
-  if (evaluated) final_eval = evaluate(model, trainer, split.test, split.test.size(), a.threads, true, &renders);
+  if (evaluated)
+    final_eval = evaluate(model, trainer, split.test, split.test.size(), a.threads, true, &renders, &split.test_depth);
   if (evaluated && !split.test.empty())
     curve << fmt::format("{:.3f},{},{:.4f}\n", train_seconds, trainer.steps(), final_eval.psnr);
 
@@ -187,6 +219,12 @@ int runTrain(const TrainArgs& a) {
   rep["seed"] = to.seed;
   if (!a.config.empty()) rep["config"] = a.config;
   rep["train_views"] = num_train;
+  rep["depth_views"] = split.depth_views;  // training views supervised by their depth image's points
+  rep["depth_points"] = split.depth_points;
+  if (final_eval.depth_error >= 0)
+    rep["depth_error_test_median"] = final_eval.depth_error;
+  else
+    rep["depth_error_test_median"] = nullptr;  // no test view has a depth image
   rep["test_views"] = split.test.size();
   rep["interrupted"] = interrupted;
   if (evaluated) {
@@ -239,6 +277,11 @@ Registrar reg(
           ->check(CLI::Range(1, 1000));
       auto* samples = sub.add_option("--samples-per-step", a->samples_per_step, "Ray samples per optimiser step")
                           ->check(CLI::Range(256, 1 << 22));
+      sub.add_option("--depth-points", a->depth_points,
+                     "Pixels of a frame's depth image (transforms.json depth_path / depth_file_path) that supervise "
+                     "its training view's depth, at most (0: training ignores depth; test views' depth still gives the "
+                     "report's depth error)")
+          ->check(CLI::Range(0, 1 << 20));
       return [a, threads, seed, samples]() -> int {
         a->threads_given = threads->count() > 0;
         a->seed_given = seed->count() > 0;

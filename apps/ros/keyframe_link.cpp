@@ -59,6 +59,12 @@ void KeyframeSender::attach(std::shared_ptr<SlamSystem> system) {
     s->system = std::move(system);
     // Never blocks the mapping thread: a sender that falls this far behind loses the oldest.
     s->queue = s->system->keyframeBus().subscribe(1000, OverflowPolicy::kDropOldest);
+    // A system started from a saved map (~map): its keyframes are in the map before any is inserted;
+    // they go out first, as if inserted (empty for a new map).
+    const Map& map = s->system->map();
+    for (const KeyframeId id : map.keyframeIds())
+      if (const std::optional<Keyframe> kf = map.keyframe(id))
+        s->queue->tryPush(KeyframeEvent{kf->id, kf->T_world_cam, kf->frame});
   }
   std::lock_guard<std::mutex> lock(mutex_);
   if (s) {

@@ -455,19 +455,39 @@ bool NerfPublisher::updateModelCopy(const NerfMapping& nerf) {
 bool NerfPublisher::onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
   std::string dir_param = p_.map_dir;
   pnh_.getParam("map_dir", dir_param);  // re-read: `rosparam set` before the call changes the folder
-  const std::filesystem::path dir = resolveMapDir(dir_param);
-  auto refuse = [&](const std::string& why) {
+  if (dir_param.empty()) {
     ++save_failures_;
     res.success = false;
-    res.message = why;
-    ROS_ERROR("~save_map: %s", why.c_str());
+    res.message = "~map_dir is empty";
+    ROS_ERROR("~save_map: %s", res.message.c_str());
     return true;
+  }
+  const std::filesystem::path dir = resolveMapDir(dir_param);
+  std::string message;
+  res.success = saveMap(dir, &message) == SaveOutcome::kSaved;
+  if (res.success) {
+    res.message = dir.string();  // the folder, for callers; the details in the log
+    ROS_INFO("~save_map: %s", message.c_str());
+  } else {
+    res.message = message;
+    ROS_ERROR("~save_map: %s", message.c_str());
+  }
+  return true;
+}
+
+NerfPublisher::SaveOutcome NerfPublisher::saveMap(const std::filesystem::path& dir, std::string* message) {
+  auto refuse = [&](SaveOutcome why, const std::string& text) {
+    ++save_failures_;
+    *message = text;
+    return why;
   };
-  if (dir_param.empty()) return refuse("~map_dir is empty");
   const auto src = source_();
-  if (!src) return refuse("no map to save: the SLAM system has not started (no images received yet)");
+  if (!src)
+    return refuse(SaveOutcome::kNothingToSave,
+                  "no map to save: the SLAM system has not started (no images received yet)");
   if (src->map->numKeyframes() == 0)
-    return refuse("no map to save: the SLAM system has not initialised yet (no keyframes)");
+    return refuse(SaveOutcome::kNothingToSave,
+                  "no map to save: the SLAM system has not initialised yet (no keyframes)");
   NerfModelWriter write_nerf;
   // The model is written from a copy (training pauses only for the copy, not for the disk write).
   if (NerfMapping* n = src->nerf; n && n->hasModel())
@@ -483,21 +503,20 @@ bool NerfPublisher::onSaveMap(std_srvs::Trigger::Request&, std_srvs::Trigger::Re
       std::lock_guard<std::mutex> lock(saved_mutex_);
       last_saved_ = dir.string();
     }
-    res.success = true;
-    res.message = dir.string();
-    ROS_INFO(
-        "~save_map: %s (generation %lu: %zu keyframes, %zu points, %s, %.1f MB, %zu images written, %zu "
-        "reused, %.2f s)",
-        dir.c_str(), static_cast<unsigned long>(r.generation), r.keyframes, r.points,
-        r.has_nerf ? "with the NeRF model" : "no NeRF model", r.bytes / 1e6, r.images_written, r.images_reused,
-        r.seconds);
+    char buf[512];
+    std::snprintf(buf, sizeof buf,
+                  " (generation %lu: %zu keyframes, %zu points, %s, %.1f MB, %zu images written, %zu reused, %.2f s)",
+                  static_cast<unsigned long>(r.generation), r.keyframes, r.points,
+                  r.has_nerf ? "with the NeRF model" : "no NeRF model", r.bytes / 1e6, r.images_written,
+                  r.images_reused, r.seconds);
+    *message = dir.string() + buf;
+    return SaveOutcome::kSaved;
   } catch (const std::exception& e) {
     const std::string what = e.what();
-    return refuse(what.find(dir.string()) != std::string::npos
-                      ? "cannot save the map: " + what
-                      : "cannot save the map to " + dir.string() + ": " + what);
+    return refuse(SaveOutcome::kFailed, what.find(dir.string()) != std::string::npos
+                                            ? "cannot save the map: " + what
+                                            : "cannot save the map to " + dir.string() + ": " + what);
   }
-  return true;
 }
 
 void NerfPublisher::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) const {

@@ -6,7 +6,10 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <cstdio>
+#include <cstdlib>
+#include <filesystem>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -22,6 +25,7 @@
 #include "nerfslam/core/bounded_queue.h"
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/timing.h"
+#include "nerfslam/system/map_store.h"
 #include "nerfslam/system/slam_system.h"
 #include "nerfslam_ros/conversions.h"
 #include "nerfslam_ros/keyframe_link.h"
@@ -89,13 +93,16 @@ class NerfslamNode {
         p_(std::move(p)),
         it_(nh),
         updater_(nh, pnh),
-        queue_(p_.node.queue_size, nerfslam::OverflowPolicy::kDropOldest) {
+        queue_(p_.node.queue_size, nerfslam::OverflowPolicy::kDropOldest),
+        map_mode_(nerfslam::rosnode::mapModeOf(p_.node)),
+        localization_only_(map_mode_ == nerfslam::MapMode::kLocalize) {
     if (!p_.node.camera_yaml.empty()) {
       yaml_camera_ = std::make_shared<const Camera>(nerfslam::loadCameraYaml(p_.node.camera_yaml));  // throws
       ROS_INFO("calibration from %s: %dx%d fx=%.3f fy=%.3f cx=%.3f cy=%.3f", p_.node.camera_yaml.c_str(),
                yaml_camera_->width, yaml_camera_->height, yaml_camera_->fx, yaml_camera_->fy, yaml_camera_->cx,
                yaml_camera_->cy);
     }
+    if (map_mode_ != nerfslam::MapMode::kSlam) loadStartMap();  // throws: ROS_FATAL, exit status 1 (spinNode)
     pub_ = std::make_unique<nerfslam::rosnode::SlamPublishers>(pnh_, p_);
     if (tracking())
       sender_ = std::make_unique<nerfslam::rosnode::KeyframeSender>(pnh_, mapFrame(), p_.node.keyframe_poses_period);
@@ -133,6 +140,10 @@ class NerfslamNode {
   }
 
   ~NerfslamNode() {
+    // ~save_on_shutdown: the whole shutdown (the worker's last frame, mapping's queued keyframes, the
+    // save) is bounded by ~save_on_shutdown_timeout.
+    std::optional<ShutdownWatchdog> watchdog;
+    if (p_.node.save_on_shutdown) watchdog.emplace(p_.node.save_on_shutdown_timeout, saveOnShutdownDir());
     stopping_ = true;
     queue_.close();
     if (worker_.joinable()) worker_.join();
@@ -143,6 +154,7 @@ class NerfslamNode {
       sender_->stop();
       sender_->attach(nullptr);
     }
+    if (p_.node.save_on_shutdown) saveOnShutdown();
     setHandle(nullptr);
     std::lock_guard<std::mutex> lock(system_mutex_);
     if (system_) system_->finish(false);
@@ -171,6 +183,118 @@ class NerfslamNode {
   bool tracking() const { return p_.mode == SlamNodeMode::kTracking; }
   const std::string& mapFrame() const { return p_.topics.map_frame; }
   const std::string& cameraFrame() const { return p_.topics.camera_frame; }
+
+  // ---- ~map: the saved map the node starts from ----
+  // At start: the folder loaded and verified (with ~camera_yaml's calibration when set; otherwise the
+  // first frame's camera_info is checked against it, prepareSystem). Throws an Error naming ~map.
+  void loadStartMap() {
+    map_dir_ = nerfslam::rosnode::resolveMapDir(p_.node.map);
+    const std::string what = "~map " + map_dir_.string() + " (~map_mode " + p_.node.map_mode + ")";
+    try {
+      start_map_ = std::make_unique<nerfslam::LoadedMap>(nerfslam::loadMapFolder(
+          map_dir_, yaml_camera_ ? std::optional<Camera>(*yaml_camera_) : std::optional<Camera>()));
+    } catch (const std::exception& e) {
+      throw nerfslam::Error(what + ": cannot load the map: " + e.what());
+    }
+    if (!start_map_->map || start_map_->map->numKeyframes() == 0)
+      throw nerfslam::Error(what + ": the map has no keyframes");
+    map_keyframes_ = start_map_->map->numKeyframes();
+    if (start_map_->nerf_model && !p_.slam.nerf.enabled)
+      ROS_WARN(
+          "%s has a NeRF model, which this node does not use (%s): a map it saves (~save_map, "
+          "~save_on_shutdown) has none; do not save it over this folder to keep the model",
+          what.c_str(), tracking() ? "tracking_node trains no NeRF" : "~nerf false");
+    ROS_INFO("%s: generation %lu, %zu keyframes, %zu points, %s, camera %s, loaded in %.2f s; %s", what.c_str(),
+             static_cast<unsigned long>(start_map_->generation), start_map_->map->numKeyframes(),
+             start_map_->map->numPoints(),
+             !start_map_->nerf_model                   ? "no NeRF model"
+             : !p_.slam.nerf.enabled                   ? "a NeRF model (not used: no NeRF in this node)"
+             : map_mode_ == nerfslam::MapMode::kExtend ? "a NeRF model (trains on)"
+                                                       : "a NeRF model (frozen)",
+             start_map_->camera.describe().c_str(), start_map_->seconds,
+             map_mode_ == nerfslam::MapMode::kExtend
+                 ? "the node relocalises in it, then maps on (new keyframes and points)"
+                 : "the node relocalises in it, then tracks against it without changing it (no keyframes added)");
+  }
+
+  // A fatal error found while running (e.g. a ~map of another camera): said, and the node exits with
+  // status 1 instead of going on without the map.
+  void fatal(const std::string& message) {
+    ROS_FATAL("%s", message.c_str());
+    std::fprintf(stderr, "FATAL: %s\n", message.c_str());
+    nerfslam::rosnode::nodeExitCode() = 1;
+    fatal_ = true;
+    ros::requestShutdown();
+  }
+
+  std::filesystem::path saveOnShutdownDir() const {
+    return nerfslam::rosnode::resolveMapDir(p_.node.save_on_shutdown_dir.empty() ? p_.topics.map_dir
+                                                                                 : p_.node.save_on_shutdown_dir);
+  }
+
+  // Exits the process (status 1) when the shutdown takes longer than `seconds`: a map folder's save
+  // is atomic, so the folder keeps its previous map.
+  class ShutdownWatchdog {
+   public:
+    ShutdownWatchdog(double seconds, const std::filesystem::path& dir) {
+      std::printf("shutdown: saving the map into %s (~save_on_shutdown; at most %.1f s)\n", dir.c_str(), seconds);
+      std::fflush(stdout);
+      thread_ = std::thread([this, seconds, dir] {
+        std::unique_lock<std::mutex> lock(mutex_);
+        if (cv_.wait_for(lock, std::chrono::duration<double>(seconds), [this] { return done_; })) return;
+        std::fprintf(stderr,
+                     "shutdown: ~save_on_shutdown_timeout (%.1f s) reached before the map was saved into %s; exiting "
+                     "with status 1 (the folder keeps its previous map)\n",
+                     seconds, dir.c_str());
+        std::fflush(stderr);
+        std::_Exit(1);
+      });
+    }
+    ~ShutdownWatchdog() {
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        done_ = true;
+      }
+      cv_.notify_all();
+      thread_.join();
+    }
+
+   private:
+    std::mutex mutex_;
+    std::condition_variable cv_;
+    bool done_ = false;
+    std::thread thread_;
+  };
+
+  // ~save_on_shutdown, after the worker and the NeRF publisher stopped: mapping finishes the keyframes
+  // it was given (no global BA), then the map folder is written as by ~save_map. stdout: rosconsole no
+  // longer prints once ros::shutdown() has run.
+  void saveOnShutdown() {
+    const std::filesystem::path dir = saveOnShutdownDir();
+    std::error_code ec;
+    if (map_mode_ == nerfslam::MapMode::kLocalize && localization_only_ &&
+        std::filesystem::equivalent(dir, map_dir_, ec)) {
+      std::printf("shutdown: the map in %s is not saved again: ~map_mode localize left it as it was\n", dir.c_str());
+      std::fflush(stdout);
+      return;
+    }
+    {
+      std::lock_guard<std::mutex> lock(system_mutex_);
+      if (system_) system_->finish(false);
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    std::string message;
+    const auto outcome = nerf_pub_->saveMap(dir, &message);
+    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (outcome == nerfslam::rosnode::NerfPublisher::SaveOutcome::kSaved) {
+      std::printf("shutdown: map saved: %s; %.2f s\n", message.c_str(), s);
+    } else {
+      std::fprintf(stderr, "shutdown: the map was not saved (~save_on_shutdown): %s\n", message.c_str());
+      if (outcome == nerfslam::rosnode::NerfPublisher::SaveOutcome::kFailed) nerfslam::rosnode::nodeExitCode() = 1;
+    }
+    std::fflush(stdout);
+    std::fflush(stderr);
+  }
 
   // ---- Callbacks: checks and enqueueing only ----
   void onCamera(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
@@ -379,16 +503,46 @@ class NerfslamNode {
       pub_->newSystem();
     }
     if (system_) return true;
+    if (fatal_) return false;
     nerfslam::SystemOptions opt = p_.slam;
     opt.lockstep = false;  // `nerfslam run`'s reader; recorded so in a saved map's options
-    try {
-      system_ = std::make_shared<SlamSystem>(*camera, opt);
-      worker_camera_ = camera;
-    } catch (const std::exception& e) {
-      ++tracking_errors_;
-      ROS_ERROR_THROTTLE(5.0, "cannot start the SLAM system: %s", e.what());
-      return false;
+    if (map_mode_ != nerfslam::MapMode::kSlam) {
+      // From ~map (after a ~reset or a new calibration: loaded again), with the same code as `nerfslam
+      // run --map`; a map of another camera is fatal (the node never maps from scratch instead).
+      const std::string what = "~map " + map_dir_.string() + " (~map_mode " + p_.node.map_mode + ")";
+      try {
+        if (start_map_)
+          nerfslam::checkSameCamera(start_map_->camera, *camera, "the images' camera_info");
+        else
+          start_map_ = std::make_unique<nerfslam::LoadedMap>(nerfslam::loadMapFolder(map_dir_, *camera));
+      } catch (const std::exception& e) {
+        start_map_.reset();
+        fatal(what + ": " + e.what());
+        return false;
+      }
+      try {
+        system_ = nerfslam::startSlamSystem(*camera, opt, *start_map_, map_mode_);
+        worker_camera_ = camera;
+      } catch (const std::exception& e) {
+        start_map_.reset();
+        fatal(what + ": cannot start the SLAM system from it: " + e.what());
+        return false;
+      }
+      start_map_.reset();
+      ROS_INFO("SLAM system started from %s: lost until it relocalises in the map", what.c_str());
+    } else {
+      try {
+        system_ = std::make_shared<SlamSystem>(*camera, opt);
+        worker_camera_ = camera;
+      } catch (const std::exception& e) {
+        ++tracking_errors_;
+        ROS_ERROR_THROTTLE(5.0, "cannot start the SLAM system: %s", e.what());
+        return false;
+      }
     }
+    system_index0_ = -1;
+    relocalized_frame_ = -1;
+    relocalized_after_s_ = -1.0;
     pub_->newSystem();
     // Before the first frame: every keyframe the mapping inserts reaches ~keyframes_out.
     if (sender_) sender_->attach(system_);
@@ -446,6 +600,7 @@ class NerfslamNode {
       return;
     }
     if (p_.node.wait_for_mapping) system_->waitMappingIdle();
+    noteRelocalization(rec, msg.header.stamp);
     ++processed_;
     tracking_ms_last_ = rec.tracking_ms;
     tracking_ms_sum_.store(tracking_ms_sum_.load() + rec.tracking_ms);
@@ -456,6 +611,22 @@ class NerfslamNode {
     }
     noteLatency(msg.header.stamp);
     pub_->publishFrame(msg.header.stamp, rec, *system_, *worker_camera_);
+  }
+
+  // ~map: the first frame of the system, and the frame at which it relocalised in the map (its index
+  // among the system's frames and its time after the first frame's stamp). Worker only.
+  void noteRelocalization(const nerfslam::FrameRecord& rec, const ros::Time& stamp) {
+    if (system_index0_ < 0) {
+      system_index0_ = static_cast<int64_t>(rec.index);
+      system_stamp0_ = stamp;
+    }
+    if (map_mode_ == nerfslam::MapMode::kSlam || relocalized_frame_ >= 0) return;
+    const int64_t at = system_->relocalizedAtFrame();
+    if (at < 0) return;
+    relocalized_after_s_ = (stamp - system_stamp0_).toSec();
+    relocalized_frame_ = at - system_index0_;
+    ROS_INFO("relocalised in the map %s at frame %ld, %.3f s after the first frame (stamps)", map_dir_.c_str(),
+             static_cast<long>(relocalized_frame_.load()), relocalized_after_s_.load());
   }
 
   // Latency from the image's stamp to its pose (queue + conversion + tracking), for live stamps only
@@ -524,6 +695,15 @@ class NerfslamNode {
     s.add("keyframes", kfs);
     s.add("map points", points);
     s.add("resets", static_cast<uint64_t>(resets_));
+    s.add("map mode", nerfslam::toString(map_mode_));
+    if (map_mode_ != nerfslam::MapMode::kSlam) {
+      s.add("map", map_dir_.string());
+      s.add("map keyframes loaded", static_cast<uint64_t>(map_keyframes_));
+      const int64_t at = relocalized_frame_;
+      s.add("relocalised", at >= 0 ? "yes" : "not yet");
+      s.add("relocalised at frame", at);
+      s.addf("relocalised after s", "%.3f", at >= 0 ? relocalized_after_s_.load() : -1.0);
+    }
     s.add("image publishers", static_cast<uint64_t>(publishers_));
     s.add("image stream restarts", static_cast<uint64_t>(stream_restarts_));
     s.add("image stream gaps", static_cast<uint64_t>(stream_gaps_));
@@ -574,7 +754,17 @@ class NerfslamNode {
   uint64_t generation_ = 0;  // of system_ (worker only)
   bool warned_grey_input_ = false;
   bool warned_frame_id_ = false;
-  std::atomic<bool> reset_requested_{false}, stopping_{false}, localization_only_{false};
+  // ~map (map_mode_ kSlam without it): the folder, the map loaded at start until the first system takes
+  // it, and where the system relocalised in it.
+  nerfslam::MapMode map_mode_ = nerfslam::MapMode::kSlam;
+  std::atomic<bool> reset_requested_{false}, stopping_{false}, localization_only_{false}, fatal_{false};
+  std::filesystem::path map_dir_;
+  std::unique_ptr<nerfslam::LoadedMap> start_map_;
+  size_t map_keyframes_ = 0;
+  int64_t system_index0_ = -1;
+  ros::Time system_stamp0_;
+  std::atomic<int64_t> relocalized_frame_{-1};
+  std::atomic<double> relocalized_after_s_{-1.0};
   std::shared_ptr<const Camera> worker_camera_;
   std::thread worker_;
 

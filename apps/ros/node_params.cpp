@@ -81,8 +81,16 @@ const std::vector<OptionAlias>& optionAliases(NodeKind node) {
   return node == NodeKind::kSlam ? slam : nerf_mapping;
 }
 
+MapMode mapModeOf(const SlamNodeOptions& o) {
+  if (o.map.empty()) return MapMode::kSlam;
+  return o.map_mode == "extend" ? MapMode::kExtend : MapMode::kLocalize;
+}
+
 ParamReport readSlamNodeParams(const XmlRpc::XmlRpcValue& tree, SlamNodeParams& p) {
   ParamReport r = readParams(tree, p, &p.slam, optionAliases(NodeKind::kSlam), kAlsoKnown);
+  if (p.node.map_mode != "localize" && p.node.map_mode != "extend")
+    r.errors.push_back("~map_mode '" + p.node.map_mode + "' is neither localize nor extend (~map '" + p.node.map +
+                       "')");
   if (p.mode == SlamNodeMode::kTracking) {
     // The NeRF runs in nerf_mapping_node.
     if (p.slam.nerf.enabled && r.origins.count("nerf.enabled"))

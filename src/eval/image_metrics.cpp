@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "nerfslam/core/error.h"
+#include "nerfslam/core/statistics.h"
 
 namespace nerfslam {
 namespace {
@@ -89,6 +90,21 @@ double ssim(const cv::Mat& a, const cv::Mat& b, double max_value) {
   double total = 0;
   for (size_t c = 0; c < ca.size(); ++c) total += cv::mean(ssimMap(ca[c], cb[c], max_value))[0];
   return total / static_cast<double>(ca.size());
+}
+
+std::optional<double> depthMedianAbsRel(const cv::Mat& depth, const cv::Mat& truth, double scale) {
+  if (depth.type() != CV_32FC1 || truth.type() != CV_32FC1 || depth.size() != truth.size())
+    fail("depthMedianAbsRel: the depth maps must be CV_32FC1 of one size ({}x{} and {}x{})", depth.cols, depth.rows,
+         truth.cols, truth.rows);
+  std::vector<double> rel;
+  for (int y = 0; y < truth.rows; ++y) {
+    const float* t = truth.ptr<float>(y);
+    const float* d = depth.ptr<float>(y);
+    for (int x = 0; x < truth.cols; ++x)
+      if (t[x] > 0.f && d[x] > 0.f) rel.push_back(std::abs(scale * d[x] - t[x]) / t[x]);
+  }
+  if (rel.empty()) return std::nullopt;
+  return median(std::move(rel));
 }
 
 }  // namespace nerfslam

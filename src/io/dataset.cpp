@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 
 #include <spdlog/spdlog.h>
 
@@ -25,6 +26,31 @@ void writeDatasetBag(const Dataset&, const fs::path& out, const BagWriteOptions&
        out.string());
 }
 #endif
+
+cv::Mat Dataset::loadDepth(size_t) const { return {}; }
+
+cv::Mat SequenceDataset::loadDepth(size_t i) const {
+  const FrameEntry& e = at(i);
+  if (e.depth.empty()) return {};
+  const std::string name = e.depth.string();
+  const cv::Mat raw = readImage(e.depth, ImageMode::kUnchanged);
+  if (raw.channels() != 1 || (raw.depth() != CV_16U && raw.depth() != CV_32F))
+    throw fieldError(name, "image", "depth must be a single-channel 16-bit or 32-bit float image");
+  if (raw.cols != camera_.width || raw.rows != camera_.height)
+    throw fieldError(
+        name, "image",
+        fmt::format("depth is {}x{} but the camera is {}x{}", raw.cols, raw.rows, camera_.width, camera_.height));
+  cv::Mat depth;
+  raw.convertTo(depth, CV_32F, depth_scale_);
+  for (int y = 0; y < depth.rows; ++y) {
+    const float* row = depth.ptr<float>(y);
+    for (int x = 0; x < depth.cols; ++x)
+      if (!std::isfinite(row[x]) || row[x] < 0.f)
+        throw fieldError(name, "image",
+                         fmt::format("depth at pixel ({}, {}) is {} (negative or not finite)", x, y, row[x]));
+  }
+  return depth;
+}
 
 std::vector<std::optional<SE3>> Dataset::groundTruthAll() const {
   std::vector<std::optional<SE3>> out;

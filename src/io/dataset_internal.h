@@ -19,6 +19,7 @@ struct FrameEntry {
   fs::path image;
   double timestamp = 0.0;
   std::optional<SE3> T_world_cam;
+  fs::path depth;  // empty: none (transforms.json's depth_path / depth_file_path)
 };
 
 // A dataset that is a list of frames with one camera; every reader produces one.
@@ -36,6 +37,8 @@ class SequenceDataset : public Dataset {
   bool hasGroundTruth() const override { return has_gt_; }
   DatasetFrame load(size_t i, ImageMode mode = ImageMode::kGray) const override;
   std::optional<double> aabbScale() const override { return aabb_scale_; }
+  cv::Mat loadDepth(size_t i) const override;
+  std::optional<NerfScene> nerfScene() const override { return nerf_scene_; }
 
   // Finishes opening: applies opts (start/stride/max_frames, camera override), checks the list is
   // non-empty and the timestamps strictly increase, decodes the first image and checks its size
@@ -46,6 +49,8 @@ class SequenceDataset : public Dataset {
               const DatasetOptions& opts, const std::string& missing_camera_hint = "");
 
   std::optional<double> aabb_scale_;
+  double depth_scale_ = 1e-3;  // metres per depth-image unit (transforms.json)
+  std::optional<NerfScene> nerf_scene_;
 
  private:
   const FrameEntry& at(size_t i) const;

@@ -10,6 +10,10 @@
 // axes by right-multiplying with diag(1, -1, -1, 1). Timestamps: a frame's "timestamp" or "time"
 // (seconds) when every frame has one, else index / 30 (or / DatasetOptions::fps).
 // Per-frame intrinsics (instant-ngp allows them) must match the global ones: one camera per dataset.
+// Depth: a frame's "depth_path" (instant-ngp) or "depth_file_path" (nerfstudio), z-depth in units of
+// "integer_depth_scale" / "depth_unit_scale_factor" metres (1e-3 when the file gives neither).
+// "scale" and "offset" (p_nerf = scale * p + offset; instant-ngp's 0.33 and 0.5 when one is missing)
+// place the scene in the NeRF's unit cube.
 #include <cmath>
 
 #include <nlohmann/json.hpp>
@@ -89,6 +93,17 @@ std::unique_ptr<Dataset> openTransforms(const fs::path& path, const DatasetOptio
     e.image = *img;
     // OpenGL camera axes (y up, looking down -z) -> OpenCV optical axes (y down, z forward).
     e.T_world_cam = SE3::fromMatrix(T * Eigen::Vector4d(1, -1, -1, 1).asDiagonal());
+    // Depth (instant-ngp's "depth_path", nerfstudio's "depth_file_path"), relative to the json's folder.
+    for (const char* k : {"depth_path", "depth_file_path"}) {
+      if (!f.contains(k)) continue;
+      if (!f[k].is_string()) throw fieldError(file.string(), where + k, "not a string");
+      const fs::path dp = dir / f[k].get<std::string>();
+      std::error_code dec;
+      if (!fs::is_regular_file(dp, dec))
+        throw fieldError(file.string(), where + k, "depth image " + dp.string() + " not found");
+      e.depth = dp;
+      break;
+    }
     for (const char* k : {"timestamp", "time"}) {
       if (f.contains(k)) {
         e.timestamp = number(f, k, file, where);
@@ -154,6 +169,28 @@ std::unique_ptr<Dataset> openTransforms(const fs::path& path, const DatasetOptio
 
   auto ds = std::make_unique<SequenceDataset>("transforms", path);
   ds->aabb_scale_ = j.contains("aabb_scale") ? number(j, "aabb_scale", file) : 1.0;
+  if (j.contains("scale") || j.contains("offset")) {
+    Dataset::NerfScene ns;
+    ns.scale = j.contains("scale") ? number(j, "scale", file) : 0.33;  // instant-ngp's defaults
+    ns.offset = Eigen::Vector3d::Constant(0.5);
+    if (!(ns.scale > 0)) throw fieldError(file.string(), "scale", "must be > 0");
+    if (j.contains("offset")) {
+      const json& o = j["offset"];
+      if (!o.is_array() || o.size() != 3) throw fieldError(file.string(), "offset", "must be a list of 3 numbers");
+      for (int k = 0; k < 3; ++k) {
+        if (!o[size_t(k)].is_number() || !std::isfinite(o[size_t(k)].get<double>()))
+          throw fieldError(file.string(), "offset", "must be a list of 3 finite numbers");
+        ns.offset[k] = o[size_t(k)].get<double>();
+      }
+    }
+    ds->nerf_scene_ = ns;
+  }
+  for (const char* k : {"integer_depth_scale", "depth_unit_scale_factor"}) {
+    if (!j.contains(k)) continue;
+    ds->depth_scale_ = number(j, k, file);
+    if (!(ds->depth_scale_ > 0)) throw fieldError(file.string(), k, "must be > 0");
+    break;
+  }
   if (!(*ds->aabb_scale_ > 0)) throw fieldError(file.string(), "aabb_scale", "must be > 0");
   std::optional<Camera> own;
   if (fx > 0) own = cam;

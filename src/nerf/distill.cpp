@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <random>
 #include <vector>
 
@@ -13,6 +14,7 @@ namespace {
 // One step's points: positions in both models' NeRF spaces, and directions.
 struct DistillBatch {
   std::vector<float> p_from, p_to, dir;
+  std::vector<uint8_t> inside;  // the point is inside the student's box (others teach nothing)
 };
 
 // Draws the points of every step from one generator and one set of distributions (the normal
@@ -21,22 +23,31 @@ class PointSampler {
  public:
   explicit PointSampler(uint64_t seed) : rng_(seed ^ 0x64697374ull), cell_(0, OccupancyGrid::kRes - 1) {}
 
-  // Half the points uniform in from's unit cube, half (odd indices) inside its occupied cells of
-  // cascade 0 (uniform when 64 tries find no occupied cell).
+  // Each point in one of from's cascades, drawn uniformly (cascade m is the cube of side 2^m around
+  // the unit cube's centre: with aabb_scale > 1 the far scenery lives in the outer ones); half the
+  // points uniform in that cube, half (odd indices) inside its occupied cells (uniform when 64 tries
+  // find no occupied cell).
   void draw(const NerfModel& from, const NerfModel& to, int n, DistillBatch* b) {
+    std::uniform_int_distribution<int> cascade(0, std::max(1, from.grid->cascades()) - 1);
     for (int i = 0; i < n; ++i) {
-      Eigen::Vector3f p(u01_(rng_), u01_(rng_), u01_(rng_));
+      const int m = cascade(rng_);
+      const float side = std::ldexp(1.f, m);
+      Eigen::Vector3f p = Eigen::Vector3f::Constant(0.5f) +
+                          side * Eigen::Vector3f(u01_(rng_) - 0.5f, u01_(rng_) - 0.5f, u01_(rng_) - 0.5f);
       if (i % 2 == 1) {
         for (int tries = 0; tries < 64; ++tries) {
           const int x = cell_(rng_), y = cell_(rng_), z = cell_(rng_);
-          if (!from.grid->occupiedCell(0, x, y, z)) continue;
-          const float c = OccupancyGrid::cellSize(0);
-          p = from.grid->cellCenter(0, x, y, z) +
+          if (!from.grid->occupiedCell(m, x, y, z)) continue;
+          const float c = OccupancyGrid::cellSize(m);
+          p = from.grid->cellCenter(m, x, y, z) +
               c * Eigen::Vector3f(u01_(rng_) - 0.5f, u01_(rng_) - 0.5f, u01_(rng_) - 0.5f);
           break;
         }
       }
       const Eigen::Vector3d pt = to.scene.toNerf(from.scene.toWorld(p.cast<double>()));
+      const Eigen::Vector3f q = pt.cast<float>();
+      b->inside[size_t(i)] =
+          (q.array() >= to.scene.aabbMin().array()).all() && (q.array() <= to.scene.aabbMax().array()).all() ? 1 : 0;
       Eigen::Vector3f d(gauss_(rng_), gauss_(rng_), gauss_(rng_));
       d /= std::max(d.norm(), 1e-6f);
       for (int a = 0; a < 3; ++a) {
@@ -66,7 +77,8 @@ double distill(const NerfModel& from, NerfModel& to, const DistillOptions& optio
   PointSampler sampler(options.seed);
   auto ws = to.field->makeWorkspace();
   auto grads = to.field->makeGradients();
-  DistillBatch b{std::vector<float>(3 * un), std::vector<float>(3 * un), std::vector<float>(3 * un)};
+  DistillBatch b{std::vector<float>(3 * un), std::vector<float>(3 * un), std::vector<float>(3 * un),
+                 std::vector<uint8_t>(un)};
   std::vector<float> q_from(3 * un), q_to(3 * un), sig_f(un), rgb_f(3 * un), sig_t(un), rgb_t(3 * un), d_sig(un),
       d_rgb(3 * un);
   double loss = 0;
@@ -78,6 +90,11 @@ double distill(const NerfModel& from, NerfModel& to, const DistillOptions& optio
     to.field->forward(ws, q_to.data(), b.dir.data(), un, sig_t.data(), rgb_t.data());
     loss = 0;
     for (int i = 0; i < n; ++i) {
+      if (!b.inside[size_t(i)]) {  // outside the student's box: its clamped coordinates must not learn it
+        d_sig[size_t(i)] = 0.f;
+        for (int c = 0; c < 3; ++c) d_rgb[size_t(3 * i + c)] = 0.f;
+        continue;
+      }
       const float target_sigma = float(sig_f[size_t(i)] * k);
       const float target = std::max(std::log(std::max(target_sigma, 1e-30f)), log_floor);
       const float s = std::max(sig_t[size_t(i)], 1e-30f);

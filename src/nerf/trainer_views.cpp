@@ -25,6 +25,34 @@ void validateView(const TrainingView& view, const std::string& source) {
   if (!view.T_world_cam.matrix().allFinite()) throw fieldError(source, "T_world_cam", "is not finite");
 }
 
+std::vector<SurfacePoint> surfacePointsFromDepth(const cv::Mat& depth, const Camera& camera, const SE3& T_world_cam,
+                                                 size_t max_points, const std::string& source) {
+  if (depth.type() != CV_32FC1) throw fieldError(source, "depth", "must be a single-channel float image");
+  if (depth.cols != camera.width || depth.rows != camera.height)
+    throw fieldError(
+        source, "depth",
+        fmt::format("is {}x{} but the camera is {}x{}", depth.cols, depth.rows, camera.width, camera.height));
+  std::vector<SurfacePoint> out;
+  if (max_points == 0) return out;
+  // The smallest grid stride that keeps at most max_points of the image's pixels.
+  const double pixels = double(depth.cols) * depth.rows;
+  const int stride = std::max(1, int(std::ceil(std::sqrt(pixels / double(max_points)))));
+  for (int y = stride / 2; y < depth.rows; y += stride) {
+    const float* row = depth.ptr<float>(y);
+    for (int x = stride / 2; x < depth.cols; x += stride) {
+      const float z = row[x];
+      if (!(z > 0.f) || !std::isfinite(z)) continue;
+      const Eigen::Vector3d ray = camera.unproject(Eigen::Vector2d(x, y));  // (x, y, 1)
+      if (!ray.allFinite()) continue;
+      SurfacePoint p;
+      p.position = (T_world_cam * (ray * double(z))).cast<float>();
+      out.push_back(p);
+      if (out.size() >= max_points) return out;
+    }
+  }
+  return out;
+}
+
 TrainingView makeTrainingView(const cv::Mat& image, const Camera& camera, const SE3& T_world_cam, double downscale,
                               const std::string& source) {
   if (image.empty()) throw fieldError(source, "image", "is empty");

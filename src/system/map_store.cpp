@@ -14,6 +14,7 @@
 #include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/options_yaml.h"
+#include "nerfslam/system/nerf_mapping.h"
 #include "nerfslam/tracking/frame.h"
 #include "system/map_codec.h"
 #include "system/map_rebuild.h"
@@ -210,6 +211,16 @@ LoadedMap loadMapFolder(const fs::path& dir, const std::optional<Camera>& expect
                dir.string(), out.generation, out.map->numKeyframes(), out.keyframes_rebuilt_identical,
                out.map->numPoints(), out.nerf_model ? ", NeRF model" : "", out.seconds);
   return out;
+}
+
+std::unique_ptr<SlamSystem> startSlamSystem(const Camera& camera, const SystemOptions& options, LoadedMap& loaded,
+                                            MapMode mode) {
+  const bool from_map = loaded.map != nullptr && mode != MapMode::kSlam;
+  auto slam = std::make_unique<SlamSystem>(camera, options, from_map ? std::move(loaded.map) : nullptr,
+                                           from_map ? mode : MapMode::kSlam);
+  if (from_map && loaded.nerf_model && slam->nerf())
+    slam->nerf()->resume(*loaded.nerf_model, mode != MapMode::kLocalize);
+  return slam;
 }
 
 }  // namespace nerfslam

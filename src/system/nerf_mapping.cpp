@@ -87,6 +87,7 @@ void NerfMapping::run() {
         continue;
       }
       if (trainer_) stepOnce();
+      letWaitersIn(lock);
     } catch (const std::exception& e) {
       spdlog::error("NeRF mapping thread: {}; NeRF training stopped (tracking and sparse mapping go on)", e.what());
       return;
@@ -298,6 +299,7 @@ void NerfMapping::stepOnce() {
     std::lock_guard<std::mutex> s(stats_mutex_);
     stats_.steps = step_offset_ + trainer_->steps();
     stats_.samples += st.samples;
+    stats_.samples_composited += st.samples_composited;
     stats_.rays += st.rays;
     stats_.depth_rays += st.depth_rays;
     stats_.rollbacks = trainer_->rollbacks();
@@ -453,7 +455,7 @@ void NerfMapping::refit() {
 }
 
 bool NerfMapping::refitNow() {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   if (!trainer_) return false;
   refit();
   return true;
@@ -461,7 +463,7 @@ bool NerfMapping::refitNow() {
 
 void NerfMapping::resume(const std::filesystem::path& model_file, bool train) {
   nerf::NerfModel loaded = nerf::loadModel(model_file);
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   model_ = std::make_unique<nerf::NerfModel>(std::move(loaded));
   trainer_.reset();
   {
@@ -477,7 +479,7 @@ void NerfMapping::resume(const std::filesystem::path& model_file, bool train) {
 }
 
 int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const std::function<bool()>& stop) {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  auto lock = lockModel();
   if (!trainer_ || frozen_ || (seconds <= 0 && steps <= 0)) return 0;
   refreshPoses();
   if (!trainer_) return 0;
@@ -498,6 +500,7 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
     if (stop && stop()) break;
     stepOnce();
     ++done;
+    letWaitersIn(lock);
   }
   return done;
 }
@@ -508,55 +511,71 @@ NerfMappingStats NerfMapping::stats() const {
 }
 
 bool NerfMapping::hasModel() const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   return model_ != nullptr && trainer_ != nullptr;
 }
 
 bool NerfMapping::renderable() const { return hasModel() && stats().steps > opt_.train.grid_update_interval; }
 
 std::vector<KeyframeId> NerfMapping::viewKeyframes() const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   std::vector<KeyframeId> out;
   for (const View& view : views_) out.push_back(view.keyframe);
   return out;
 }
 
 std::vector<uint64_t> NerfMapping::viewFrameIds() const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   std::vector<uint64_t> out;
   for (const View& view : views_) out.push_back(view.frame);
   return out;
 }
 
 nerf::TrainingView NerfMapping::trainingView(size_t i) const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   if (!trainer_) fail("NeRF: no training views yet");
   return trainer_->view(i);
 }
 
 std::vector<SE3> NerfMapping::viewPoses() const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   std::vector<SE3> out;
   for (const View& view : views_) out.push_back(view.pose);
   return out;
 }
 
 std::vector<nerf::Appearance> NerfMapping::viewAppearances() const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   std::vector<nerf::Appearance> out;
   for (size_t i = 0; trainer_ && i < trainer_->numViews(); ++i) out.push_back(trainer_->viewAppearance(i));
   return out;
 }
 
+std::unique_lock<std::mutex> NerfMapping::lockModel() const {
+  ++model_waiters_;
+  std::unique_lock<std::mutex> lock(model_mutex_);
+  --model_waiters_;
+  return lock;
+}
+
+void NerfMapping::letWaitersIn(std::unique_lock<std::mutex>& lock) {
+  if (model_waiters_.load() == 0) return;
+  lock.unlock();
+  // Each waiter leaves the count once it holds the lock; bounded, in case one never comes.
+  const auto until = Clock::now() + std::chrono::milliseconds(200);
+  while (model_waiters_.load() > 0 && Clock::now() < until) std::this_thread::yield();
+  lock.lock();
+}
+
 bool NerfMapping::withModel(const std::function<void(nerf::NerfModel&)>& fn) const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   if (!model_) return false;
   fn(*model_);
   return true;
 }
 
 Camera NerfMapping::trainingCamera() const {
-  std::lock_guard<std::mutex> lock(model_mutex_);
+  const auto lock = lockModel();
   return train_camera_;
 }
 

@@ -253,6 +253,7 @@ TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& gt, cons
 void reportNerfStats(const NerfMappingStats& st, nlohmann::json& rep) {
   rep["nerf_steps"] = st.steps;
   rep["nerf_samples"] = st.samples;
+  rep["nerf_samples_composited"] = st.samples_composited;
   rep["nerf_rays"] = st.rays;
   rep["nerf_depth_rays"] = st.depth_rays;
   rep["nerf_train_seconds"] = st.train_seconds;
@@ -292,14 +293,7 @@ std::optional<double> depthErrorAgainstGroundTruth(const std::map<double, fs::pa
   cv::Mat gt;
   gt16.convertTo(gt, CV_32F, 1.0 / 5000.0);
   cv::resize(gt, gt, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_NEAREST);
-  std::vector<double> rel;
-  for (int y = 0; y < gt.rows; ++y)
-    for (int x = 0; x < gt.cols; ++x) {
-      const float g = gt.at<float>(y, x), d = depth.at<float>(y, x);
-      if (g > 0 && d > 0) rel.push_back(std::abs(s * d - g) / g);
-    }
-  if (rel.empty()) return std::nullopt;
-  return median(rel);
+  return depthMedianAbsRel(depth, gt, s);
 }
 
 // nerf_cloud.ply/.pcd from depth renders of cloud_views training views, mesh.ply, and the surface

@@ -734,10 +734,9 @@ RunResult runSlam(const RunOptions& ro) {
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
   spdlog::info("options:\n{}", printOptions(sys));
   StartMap start = openStartMap(ro, camera);
-  SlamSystem slam(camera, sys, std::move(start.loaded.map), ro.map_mode);
+  const std::unique_ptr<SlamSystem> slam_owner = startSlamSystem(camera, sys, start.loaded, ro.map_mode);
+  SlamSystem& slam = *slam_owner;
   if (odometry) slam.setOdometry(odometry);
-  if (start.loaded.nerf_model && slam.nerf())
-    slam.nerf()->resume(*start.loaded.nerf_model, ro.map_mode != MapMode::kLocalize);
 
   // Reading and the system: the reader thread feeds the tracking thread.
   FramePipe pipe(sys, ro, ds->size());

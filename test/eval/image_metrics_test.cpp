@@ -135,5 +135,22 @@ TEST(ImageMetrics, Errors) {
   EXPECT_THROW(ssim(cv::Mat(10, 10, CV_8UC1), cv::Mat(10, 10, CV_8UC1), 255), Error);
 }
 
+// The median relative depth error over the pixels where both maps have depth, with the scale applied
+// to the rendered depth.
+TEST(DepthMedianAbsRel, MedianOverPixelsWithBothDepths) {
+  cv::Mat truth(2, 3, CV_32FC1, cv::Scalar(2.f)), depth(2, 3, CV_32FC1);
+  depth.at<float>(0, 0) = 2.2f;  // 10 %
+  depth.at<float>(0, 1) = 1.6f;  // 20 %
+  depth.at<float>(0, 2) = 2.0f;  // 0 %
+  depth.at<float>(1, 0) = 0.f;   // no render depth: skipped
+  depth.at<float>(1, 1) = 5.f;   // no true depth: skipped
+  depth.at<float>(1, 2) = 2.6f;  // 30 %
+  truth.at<float>(1, 1) = 0.f;
+  EXPECT_NEAR(*depthMedianAbsRel(depth, truth), 0.2, 1e-6);       // the upper median of 0, .1, .2, .3
+  EXPECT_NEAR(*depthMedianAbsRel(depth, truth, 2.0), 1.2, 1e-6);  // 1.2, 0.6, 1.0, 1.6
+  EXPECT_FALSE(depthMedianAbsRel(cv::Mat::zeros(2, 3, CV_32FC1), truth).has_value());
+  EXPECT_THROW(depthMedianAbsRel(cv::Mat(2, 2, CV_32FC1), truth), Error);
+}
+
 }  // namespace
 }  // namespace nerfslam

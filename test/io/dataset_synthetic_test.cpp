@@ -1,5 +1,6 @@
 // Dataset readers on layouts written here (folder, TUM, and the other kinds' file formats), and the
 // bad-input cases: each error names the file (and line or field).
+#include <cmath>
 #include <fstream>
 
 #include <opencv2/imgcodecs.hpp>
@@ -299,6 +300,66 @@ TEST(DatasetSynth, TumAndTransformsAgree) {
     EXPECT_EQ(tum->imagePath(i), tf->imagePath(i));
   }
   EXPECT_EQ(tum->load(5, ImageMode::kColor).image.type(), CV_8UC3);
+
+  // The transforms' depth images (depth_path, integer_depth_scale) are z-depth in metres: a pixel of
+  // frame 0 back-projected with its depth and projected into frame 1 lands where frame 1's depth is
+  // the point's z there (the distortion included), for the pixels both see.
+  EXPECT_TRUE(tum->loadDepth(0).empty()) << "the TUM layout's depth is ground truth, not training input";
+  const cv::Mat d0 = tf->loadDepth(0), d1 = tf->loadDepth(1);
+  ASSERT_EQ(d0.type(), CV_32FC1);
+  ASSERT_EQ(d0.size(), cv::Size(160, 120));
+  const SE3 T_1_0 = tf->groundTruth(1)->inverse() * *tf->groundTruth(0);
+  int checked = 0, agree = 0;
+  for (int y = 4; y < 120; y += 8)
+    for (int x = 4; x < 160; x += 8) {
+      const float z = d0.at<float>(y, x);
+      if (!(z > 0.f)) continue;
+      const Eigen::Vector3d p1 = T_1_0 * (b.unproject(Eigen::Vector2d(x, y)) * double(z));
+      Eigen::Vector2d uv;
+      if (!b.projectInImage(p1, &uv, 2.0)) continue;
+      const float z1 = d1.at<float>(int(std::lround(uv.y())), int(std::lround(uv.x())));
+      if (!(z1 > 0.f)) continue;
+      ++checked;
+      agree += std::abs(z1 - p1.z()) < 0.02 * p1.z() ? 1 : 0;
+    }
+  ASSERT_GT(checked, 100);
+  EXPECT_GT(agree, checked * 9 / 10) << agree << " of " << checked;
+}
+
+// A transforms.json frame's depth image: nerfstudio's keys too, and bad input named.
+TEST(DatasetTransforms, DepthImagesAndTheirErrors) {
+  test::TempDir tmp;
+  writeImage(tmp / "images" / "0.png", 0);
+  cv::Mat mm(48, 64, CV_16UC1, cv::Scalar(2500));
+  mm.at<uint16_t>(0, 0) = 0;
+  ASSERT_TRUE(cv::imwrite((tmp / "depth0.png").string(), mm));
+  const std::string frame =
+      R"({"file_path": "images/0.png", "transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]])";
+  const std::string json = (tmp / "transforms.json").string();
+  auto write = [&](const std::string& top, const std::string& extra) {
+    test::writeText(tmp / "transforms.json",
+                    R"({"fl_x": 60, "w": 64, "h": 48, )" + top + R"("frames": [)" + frame + extra + "}]}");
+  };
+  write("", R"(, "depth_file_path": "depth0.png")");  // nerfstudio: millimetres by default
+  auto ds = openDataset(tmp.path().string());
+  cv::Mat d = ds->loadDepth(0);
+  ASSERT_EQ(d.type(), CV_32FC1);
+  EXPECT_FLOAT_EQ(d.at<float>(10, 10), 2.5f);
+  EXPECT_EQ(d.at<float>(0, 0), 0.f);
+  write(R"("integer_depth_scale": 0.0002, )", R"(, "depth_path": "depth0.png")");  // instant-ngp
+  EXPECT_FLOAT_EQ(openDataset(tmp.path().string())->loadDepth(0).at<float>(10, 10), 0.5f);
+  write("", R"(, "depth_path": "missing.png")");
+  expectError([&] { openDataset(tmp.path().string()); }, {json, "frames[0].depth_path", "not found"});
+  write("", R"(, "depth_path": 3)");
+  expectError([&] { openDataset(tmp.path().string()); }, {json, "frames[0].depth_path", "not a string"});
+  write(R"("depth_unit_scale_factor": 0, )", R"(, "depth_path": "depth0.png")");
+  expectError([&] { openDataset(tmp.path().string()); }, {json, "depth_unit_scale_factor", "> 0"});
+  const std::string dp = (tmp / "depth0.png").string();
+  ASSERT_TRUE(cv::imwrite(dp, cv::Mat(24, 32, CV_16UC1, cv::Scalar(1))));
+  write("", R"(, "depth_path": "depth0.png")");
+  expectError([&] { openDataset(tmp.path().string())->loadDepth(0); }, {dp, "32x24", "64x48"});
+  ASSERT_TRUE(cv::imwrite(dp, cv::Mat(48, 64, CV_8UC3, cv::Scalar(1, 2, 3))));
+  expectError([&] { openDataset(tmp.path().string())->loadDepth(0); }, {dp, "single-channel"});
 }
 
 }  // namespace

@@ -73,6 +73,26 @@ TEST(NodeParams, DefaultsAreTheLibrarysAndValid) {
   EXPECT_TRUE(p.slam.nerf.enabled);
 }
 
+TEST(NodeParams, MapAndMapModeGiveTheLibrarysMapMode) {
+  auto read = [](const std::string& map, const std::string& mode, SlamNodeParams* p) {
+    XmlRpcValue tree;
+    if (!map.empty()) tree["map"] = str(map);
+    if (!mode.empty()) tree["map_mode"] = str(mode);
+    return nerfslam::rosnode::readSlamNodeParams(tree, *p);
+  };
+  SlamNodeParams none, localize, extend, unknown;
+  EXPECT_TRUE(read("", "", &none).ok());
+  EXPECT_EQ(nerfslam::rosnode::mapModeOf(none.node), nerfslam::MapMode::kSlam);
+  EXPECT_FALSE(none.node.save_on_shutdown);
+  EXPECT_TRUE(read("/maps/lab", "", &localize).ok());  // localize by default
+  EXPECT_EQ(nerfslam::rosnode::mapModeOf(localize.node), nerfslam::MapMode::kLocalize);
+  EXPECT_TRUE(read("/maps/lab", "extend", &extend).ok());
+  EXPECT_EQ(nerfslam::rosnode::mapModeOf(extend.node), nerfslam::MapMode::kExtend);
+  const ParamReport r = read("/maps/lab", "Localise", &unknown);
+  EXPECT_TRUE(contains(r.errors, "~map_mode 'Localise' is neither localize nor extend (~map '/maps/lab')"))
+      << joined(r.errors);
+}
+
 TEST(NodeParams, InvalidValuesAreRefusedNamingWhereTheyCameFrom) {
   {
     XmlRpcValue tree;

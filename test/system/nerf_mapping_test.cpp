@@ -382,7 +382,9 @@ TEST(NerfMapping, WholeSystemWritesTheDenseMapAndReport) {
   ro.out = dir.path() / "out";
   ro.progress = false;
   SystemOptions sys;
-  sys.nerf.final_train_seconds = 15;
+  // A fixed number of final steps, not seconds: with a time budget a loaded machine made 45 (CI
+  // rehearsal beside it) where the floors below assume more than 50.
+  sys.nerf.final_train_steps = 100;
   sys.nerf.downscale = 2;
   ro.system = sys;
   const RunResult r = runSlam(ro);
@@ -392,7 +394,8 @@ TEST(NerfMapping, WholeSystemWritesTheDenseMapAndReport) {
   for (const char* f : {"nerf_steps", "nerf_psnr_keyframes", "nerf_psnr_heldout", "tracking_ms_median_with_nerf",
                         "nerf_depth_median_abs_rel"})
     EXPECT_TRUE(rep.contains(f)) << f << " missing in " << rep.dump(2);
-  EXPECT_GT(rep.value("nerf_steps", 0), 50);
+  EXPECT_GE(rep.value("nerf_steps", 0), 100);
+  EXPECT_EQ(rep.value("nerf_final_train_steps", 0), 100);
   EXPECT_GT(rep.value("nerf_psnr_heldout", 0.0), 14.0) << rep.dump(2);
   EXPECT_GT(rep.value("nerf_psnr_heldout_frames", 0), 3);
   EXPECT_GT(rep.value("nerf_psnr_keyframes", 0.0), 14.0);

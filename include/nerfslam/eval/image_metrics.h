@@ -16,6 +16,8 @@
 // channel count; values are used as they are (no rescaling), `max_value` is the dynamic range
 // (255 for 8-bit, 1.0 for float images in [0, 1]). Errors (nerfslam::Error) for empty or
 // mismatched images, a non-positive max_value, and (SSIM) images smaller than 11x11.
+#include <optional>
+
 #include <opencv2/core.hpp>
 
 namespace nerfslam {
@@ -26,5 +28,9 @@ double ssim(const cv::Mat& a, const cv::Mat& b, double max_value);
 // The per-pixel SSIM map of one single-channel pair over the valid region ((rows-10) x (cols-10),
 // CV_64F); ssim() of a single-channel pair is its mean.
 cv::Mat ssimMap(const cv::Mat& a, const cv::Mat& b, double max_value);
+// Depth error of a rendered depth map against a true one (both CV_32FC1 of one size, 0 where there
+// is none): the median over the pixels where both have depth of |scale * depth - truth| / truth;
+// std::nullopt when no pixel has both. Throws an Error for mismatched images.
+std::optional<double> depthMedianAbsRel(const cv::Mat& depth, const cv::Mat& truth, double scale = 1.0);
 
 }  // namespace nerfslam

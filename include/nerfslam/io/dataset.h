@@ -96,6 +96,13 @@ class Dataset {
   // Extras some kinds carry (std::nullopt elsewhere).
   // instant-ngp aabb_scale of a transforms.json (1 when the file omits it).
   virtual std::optional<double> aabbScale() const { return std::nullopt; }
+  // A transforms.json's "scale" and "offset" (instant-ngp's: p_nerf = scale * p + offset), when it
+  // gives them (`nerfslam synth` does, fitting its scene into the unit cube).
+  struct NerfScene {
+    double scale = 1.0;
+    Eigen::Vector3d offset = Eigen::Vector3d::Zero();
+  };
+  virtual std::optional<NerfScene> nerfScene() const { return std::nullopt; }
   // Wheel odometry recorded with the images (a bag's nav_msgs/Odometry topic): T_odom_base samples,
   // stamps strictly increasing, and where they came from (for messages), as `run --odometry FILE`
   // would read them.
@@ -104,6 +111,13 @@ class Dataset {
     std::string source;
   };
   virtual std::optional<Odometry> odometry() const { return std::nullopt; }
+  // Depth of frame i in metres (z along the optical axis; CV_32FC1 of the camera's size, 0 where
+  // there is none), or an empty Mat when the frame has no depth. A transforms.json frame's
+  // "depth_path" (instant-ngp) or "depth_file_path" (nerfstudio), a 16-bit or float image scaled by
+  // "integer_depth_scale" or "depth_unit_scale_factor" (1e-3 when neither is given: millimetres,
+  // nerfstudio's default). Throws an Error naming the file when it is unreadable, of another size,
+  // not single-channel, or holds negative or non-finite depths.
+  virtual cv::Mat loadDepth(size_t i) const;
   // Ground truth for all frames in order (std::nullopt entries where missing).
   std::vector<std::optional<SE3>> groundTruthAll() const;
 };

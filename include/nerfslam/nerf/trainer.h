@@ -56,6 +56,13 @@ void validateView(const TrainingView& view, const std::string& source);
 // RGB or RGBA (rounded after the resize).
 TrainingView makeTrainingView(const cv::Mat& bgr_or_bgra, const Camera& camera, const SE3& T_world_cam,
                               double downscale = 1.0, const std::string& source = "image");
+// Surface points from a depth image (CV_32FC1 z-depth in world units, the camera's size; 0 or
+// non-finite: no depth): the pixels of a regular grid, as sparse as it takes to keep at most
+// max_points, back-projected through the camera (its distortion included) to world positions, each
+// of weight 1. What `nerfslam train` gives views whose transforms.json frame has a depth image.
+// Throws an Error naming `source` when the size differs from the camera's.
+std::vector<SurfacePoint> surfacePointsFromDepth(const cv::Mat& depth, const Camera& camera, const SE3& T_world_cam,
+                                                 size_t max_points, const std::string& source = "depth");
 // The view's image as float RGB composited over `background` (what a render is compared with).
 cv::Mat compositeOver(const TrainingView& view, const float background[3]);
 

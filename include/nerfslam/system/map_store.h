@@ -94,4 +94,12 @@ SystemOptions loadMapOptions(const std::filesystem::path& dir);
 // (relative tolerance 1e-9 on intrinsics and distortion).
 void checkSameCamera(const Camera& map_camera, const Camera& camera, const std::string& source);
 
+// A SlamSystem on `camera` started from `loaded` (its map is moved out; an empty LoadedMap or
+// MapMode::kSlam: a new map) in `mode`, with the NeRF (when options.nerf.enabled) resumed from the
+// map's model when it has one: frozen in kLocalize, training on in kExtend. What `nerfslam run --map`
+// and the ROS nodes' ~map both start from; `loaded` comes from loadMapFolder with the same camera
+// (or checkSameCamera).
+std::unique_ptr<SlamSystem> startSlamSystem(const Camera& camera, const SystemOptions& options, LoadedMap& loaded,
+                                            MapMode mode);
+
 }  // namespace nerfslam

@@ -241,6 +241,7 @@ struct NerfMappingOptions {
 struct NerfMappingStats {
   int64_t steps = 0;
   int64_t samples = 0;
+  int64_t samples_composited = 0;  // of those, before their ray's early termination (coloured)
   int64_t rays = 0;
   int64_t depth_rays = 0;  // of those, drawn through a map point (sparse depth)
   int64_t rollbacks = 0;
@@ -356,8 +357,13 @@ class NerfMapping {
   void measureHeldout();
   void keepHeldout(const KeyframeEvent& ev);
   void stepOnce();
-  std::vector<Eigen::Vector3d> mapPoints() const;    // positions of the sparse map's points
-  std::vector<Eigen::Vector3d> viewCentres() const;  // camera centres of the views
+  // The model lock for every thread but the NeRF thread: it counts itself as waiting while it waits,
+  // and the NeRF thread, which re-takes the lock after each step, lets waiters in first
+  // (std::mutex is not fair: a publisher asking for the model starved for tens of seconds).
+  std::unique_lock<std::mutex> lockModel() const;
+  void letWaitersIn(std::unique_lock<std::mutex>& lock);  // NeRF thread, between steps
+  std::vector<Eigen::Vector3d> mapPoints() const;         // positions of the sparse map's points
+  std::vector<Eigen::Vector3d> viewCentres() const;       // camera centres of the views
 
   Map& map_;
   KeyframeBus& bus_;
@@ -368,7 +374,8 @@ class NerfMapping {
   std::atomic<bool> frozen_{false};
   bool started_ = false, stopped_ = false;
 
-  mutable std::mutex model_mutex_;  // model_, trainer_ and the views
+  mutable std::mutex model_mutex_;             // model_, trainer_ and the views
+  mutable std::atomic<int> model_waiters_{0};  // threads waiting in lockModel()
   std::unique_ptr<nerf::NerfModel> model_;
   std::unique_ptr<nerf::Trainer> trainer_;
   std::vector<View> views_;

@@ -102,6 +102,13 @@ struct NerfTopicsOptions {
 std::filesystem::path resolveMapDir(const std::string& dir);
 double wallSeconds();
 
+// The exit status spinNode() returns once the node is destroyed (0 unless set: a fatal error found
+// while running, e.g. a ~map of another camera, or a failed save at shutdown).
+inline std::atomic<int>& nodeExitCode() {
+  static std::atomic<int> code{0};
+  return code;
+}
+
 // The nodes' main(): reads the parameters with `load` (an error is a ROS_FATAL and exit code 1), then
 // runs a `Node(nh, pnh, params)` under ros::spin(); exceptions are fatal too. Call after ros::init.
 template <class Node, class Params, class Load>
@@ -118,7 +125,7 @@ int spinNode(Params& params, Load load) {
     ROS_FATAL("%s", e.what());
     return 1;
   }
-  return 0;
+  return nodeExitCode().load();
 }
 
 // What the publisher renders and saves: the running map and NeRF, kept alive by `owner` while used.
@@ -160,6 +167,12 @@ class NerfPublisher {
   // "N NeRF renders (mean X ms), N NeRF clouds, N map saves (N failed)", for the shutdown summary.
   std::string summary() const;
   uint64_t renders() const { return renders_; }
+
+  // Saves the map folder (the map and the NeRF model of the current source) into `dir`, as ~save_map
+  // does; `message` says what was saved or why not. Any thread, but not while the publisher thread
+  // runs (after stop(): the node's shutdown, ~save_on_shutdown). ~save_map calls it on that thread.
+  enum class SaveOutcome { kSaved, kNothingToSave, kFailed };
+  SaveOutcome saveMap(const std::filesystem::path& dir, std::string* message);
 
  private:
   class ModelCopy;

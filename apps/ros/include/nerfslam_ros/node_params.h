@@ -35,6 +35,11 @@ struct SlamNodeOptions {
   double keyframe_poses_period = 0.5;
   std::string calibration_change = "refuse";
   double stream_gap = 1.0;
+  std::string map;  // a saved map folder to start from (system/map_store.h)
+  std::string map_mode = "localize";
+  bool save_on_shutdown = false;
+  std::string save_on_shutdown_dir;
+  double save_on_shutdown_timeout = 10.0;
 
   template <class V>
   void visit(V& v) {
@@ -61,8 +66,24 @@ struct SlamNodeOptions {
     v("stream_gap", stream_gap,
       "Seconds without images after which a frame stamped earlier starts a new stream; longer gaps are logged",
       check::positive<double>());
+    v("map", map,
+      "Saved map folder to start from (`nerfslam run --save-map`, ~save_map; relative: as ~map_dir): loaded at start, "
+      "the node starts lost and relocalises in it (\"\": a new map)");
+    v("map_mode", map_mode,
+      "With ~map: localize (track against the map, never change it) or extend (keep mapping; the map's NeRF model "
+      "trains on)");
+    v("save_on_shutdown", save_on_shutdown,
+      "At shutdown (SIGINT, rosnode kill, roslaunch's end) save the map folder (as ~save_map) before exiting");
+    v("save_on_shutdown_dir", save_on_shutdown_dir, "Folder ~save_on_shutdown writes (\"\": ~map_dir)");
+    v("save_on_shutdown_timeout", save_on_shutdown_timeout,
+      "Seconds the shutdown with ~save_on_shutdown may take (stopping mapping and the save); after them the node "
+      "exits with status 1, the folder keeping its previous map (roslaunch sends SIGTERM after 15 s)",
+      check::positive<double>());
   }
 };
+
+// ~map_mode as the library's MapMode (kSlam without ~map).
+MapMode mapModeOf(const SlamNodeOptions& o);
 
 struct SlamNodeParams {
   SlamNodeMode mode = SlamNodeMode::kFull;  // not a parameter: the executable
