@@ -228,7 +228,9 @@ TEST(Map, RelocalisationInputsFollowThePointsAndKeyframes) {
   map.addPoint({0, 0, 5}, {{a, 0}, {b, 0}});
   const PointId p1 = map.addPoint({1, 0, 5}, {{a, 1}, {c, 1}});
   const PointId p2 = map.addPoint({2, 0, 5}, {{a, 4}, {b, 3}, {c, 2}});
-  map.eraseKeyframe(b);  // p0 goes with it (one observation left)
+  const KeyframeId d = map.addKeyframe(makeKf(6, 4, {3, 0, 0}));
+  const PointId p3 = map.addPoint({3, 0, 5}, {{a, 5}, {d, 5}});  // a's, not c's
+  map.eraseKeyframe(b);                                          // p0 goes with it (one observation left)
   const auto cands = map.relocalizationCandidates({c, b, a}, 5);
   ASSERT_EQ(cands.size(), 2u);  // b is gone
   EXPECT_EQ(cands[0].keyframe_id, static_cast<uint64_t>(c));
@@ -239,9 +241,16 @@ TEST(Map, RelocalisationInputsFollowThePointsAndKeyframes) {
   EXPECT_EQ(cands[0].points[1].id, static_cast<uint64_t>(p2));
   EXPECT_TRUE(cands[0].points[1].p_world.isApprox(Eigen::Vector3d(2, 0, 5)));
   EXPECT_EQ(cv::norm(cands[0].points[1].descriptor, map.point(p2)->descriptor, cv::NORM_HAMMING), 0);
-  ASSERT_EQ(cands[1].points.size(), 2u);
+  ASSERT_EQ(cands[1].points.size(), 3u);
   EXPECT_EQ(cands[1].points[0].id, static_cast<uint64_t>(p1));
   EXPECT_EQ(cands[1].points[1].id, static_cast<uint64_t>(p2));
+  EXPECT_EQ(cands[1].points[2].id, static_cast<uint64_t>(p3));
+  // The neighbours: the points of the covisible keyframes the candidate does not see itself (c's
+  // covisible keyframe is a, which also sees p3; a's are c and d, which see nothing a does not).
+  ASSERT_EQ(cands[0].neighbours.size(), 1u);
+  EXPECT_EQ(cands[0].neighbours[0].id, static_cast<uint64_t>(p3));
+  EXPECT_TRUE(cands[1].neighbours.empty());
+  EXPECT_TRUE(map.relocalizationCandidates({c}, 1, 0)[0].neighbours.empty());
   // At most max_candidates of them.
   const auto one = map.relocalizationCandidates({b, a, c}, 1);
   ASSERT_EQ(one.size(), 1u);

@@ -171,9 +171,11 @@ class Map {
   // Relocalisation's input, in one shared-lock section (the keyframes come from the keyframe
   // database, mapping/place_recognition.h). relocalizationCandidates(): the keyframes of `order` still in the map, the
   // first `max_candidates` of them in that order, each with the points it observes that have a descriptor (keypoint
-  // order).
+  // order) and, as `neighbours`, the other points of its `neighbour_keyframes` best covisible keyframes (for the
+  // relocaliser's guided search; bounded, so the cost does not grow with the map).
   std::vector<RelocalizationCandidate> relocalizationCandidates(const std::vector<KeyframeId>& order,
-                                                                size_t max_candidates) const;
+                                                                size_t max_candidates,
+                                                                int neighbour_keyframes = 10) const;
 
   // Lock-wait statistics of the calling thread, over all Map instances, since the thread started or
   // the last resetThreadLockWait().
