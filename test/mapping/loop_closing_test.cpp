@@ -318,6 +318,7 @@ TEST(LoopClosingMap, ThreadClosesTheLoopWhileTheMapIsRead) {
   o.min_keyframes = 2;
   o.min_keyframe_gap = 0;
   o.queue = 2 * kKeyframesPerLap;
+  o.global_ba = true;  // off by default; its thread is tested here
   LoopClosing lc(map, &mapping, std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
   lc.start();
   std::atomic<bool> done{false};

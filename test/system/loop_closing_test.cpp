@@ -144,15 +144,10 @@ TEST(LoopClosing, RoomTwoLapsEveryRevisitClosedAndAteCutByThree) {
   EXPECT_EQ(rep.at("loop_closing_ms").at("correction").at("count").get<std::size_t>(), closures.size());
   EXPECT_GT(rep.at("loop_closing_ms").at("detection").at("count").get<int>(), 10);
   EXPECT_EQ(rep.at("loop_corrections_applied_by_tracking").get<std::size_t>(), closures.size());
-  // A global BA in the background after every closure; offline (lockstep) runs wait for it, so the
-  // next closure never has to stop one.
-  EXPECT_EQ(rep.at("global_bas").size(), closures.size());
-  EXPECT_EQ(rep.at("global_ba_stopped").get<int>(), 0);
-  EXPECT_EQ(rep.at("global_ba_ms").at("count").get<std::size_t>(), closures.size());
-  for (const auto& g : rep.at("global_bas")) {
-    EXPECT_GT(g.at("keyframes").get<int>(), 10);
-    EXPECT_LE(g.at("rmse_after_px").get<double>(), g.at("rmse_before_px").get<double>());
-  }
+  // No global BA in the background with the defaults (loop_closing.global_ba is off; its thread and
+  // its write are tested in test/mapping/loop_closing_test.cpp).
+  EXPECT_TRUE(rep.at("global_bas").empty());
+  EXPECT_EQ(rep.at("global_ba_ms").at("count").get<std::size_t>(), 0u);
   const double ate_on = rep.at("ate_percent_of_path").get<double>();
   // The poses as tracked, before the corrections (drawn beside the estimate in trajectory.png).
   const double ate_tracked = rep.at("ate_percent_of_path_as_tracked").get<double>();
