@@ -269,7 +269,8 @@ int LocalMapper::fuseWithNeighbours(KeyframeId id) {
 }
 
 BaResult LocalMapper::runBa(const std::vector<KeyframeId>& free_kfs, const std::vector<KeyframeId>& fixed_kfs,
-                            const std::vector<PointId>& point_ids, const BundleAdjustmentOptions& ba) {
+                            const std::vector<PointId>& point_ids, const BundleAdjustmentOptions& ba,
+                            MapUpdate* solution) {
   BaProblem pb;
   std::unordered_map<KeyframeId, int> cam_index;
   std::vector<Keyframe> kfs;
@@ -303,7 +304,7 @@ BaResult LocalMapper::runBa(const std::vector<KeyframeId>& free_kfs, const std::
       obs_ids.emplace_back(p.id, k);
     }
   }
-  last_odometry_constraints_ = 0;
+  int64_t gated = 0;
   if (odometry_ && odometryActive() && odometry_->options().constrain_ba) {
     const OdometryOptions& oo = odometry_->options();
     std::vector<int> order(kfs.size());
@@ -321,13 +322,16 @@ BaResult LocalMapper::runBa(const std::vector<KeyframeId>& free_kfs, const std::
       const double d_odom = m->translation().norm();
       const double d_map = (kfs[j].T_world_cam.translation() - kfs[i].T_world_cam.translation()).norm();
       if (std::abs(d_odom - d_map) > std::max(oo.gate_ratio * d_odom, 3.0 * oo.min_sigma_m)) {
-        ++odometry_gated_;
+        ++gated;
         continue;
       }
       const double sigma = oo.translation_noise * d_odom + oo.min_sigma_m;
       pb.relative_translations.push_back({i, j, m->translation(), sigma, oo.huber_sigma});
     }
+  }
+  if (!solution) {  // statistics of the mapping thread's own adjustments
     last_odometry_constraints_ = static_cast<int>(pb.relative_translations.size());
+    odometry_gated_ += gated;
   }
   BaResult r = bundleAdjust(pb, ba);
   MapUpdate u;
@@ -336,7 +340,10 @@ BaResult LocalMapper::runBa(const std::vector<KeyframeId>& free_kfs, const std::
   for (size_t i = 0; i < points.size(); ++i) u.point_positions.emplace_back(points[i].id, pb.points[i].position);
   for (size_t o = 0; o < obs_ids.size(); ++o)
     if (!r.inlier[o]) u.erase_observations.push_back(obs_ids[o]);
-  map_.applyUpdate(u);
+  if (solution)
+    *solution = std::move(u);
+  else
+    map_.applyUpdate(u);
   return r;
 }
 
@@ -433,6 +440,11 @@ MappingStats LocalMapper::processKeyframe(KeyframeId id) {
 }
 
 BaResult LocalMapper::globalBundleAdjustment(int iterations, const std::function<bool()>& should_stop) {
+  return solveGlobalBundleAdjustment(iterations, should_stop, nullptr);
+}
+
+BaResult LocalMapper::solveGlobalBundleAdjustment(int iterations, const std::function<bool()>& should_stop,
+                                                  MapUpdate* solution) {
   const auto ids = map_.keyframeIds();
   if (ids.size() < 2 || iterations <= 0) return {};
   std::vector<KeyframeId> free;
@@ -452,7 +464,7 @@ BaResult LocalMapper::globalBundleAdjustment(int iterations, const std::function
   ba.should_stop = should_stop;
   std::vector<PointId> pts;
   for (const auto& p : map_.points()) pts.push_back(p.id);
-  return runBa(free, fixed, pts, ba);
+  return runBa(free, fixed, pts, ba, solution);
 }
 
 }  // namespace nerfslam

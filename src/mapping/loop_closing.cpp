@@ -76,14 +76,19 @@ std::vector<std::pair<int, PointId>> matchPointsByProjection(const Frame& f, con
 }
 
 LoopClosing::LoopClosing(Map& map, MappingThread* mapping, std::shared_ptr<const Vocabulary> vocabulary,
-                         LoopClosingOptions options)
+                         LoopClosingOptions options, std::shared_ptr<PlaceRecognition> places)
     : map_(map),
       mapping_(mapping),
       voc_(std::move(vocabulary)),
       opt_(std::move(options)),
-      db_(voc_ ? voc_->wordCount() : 0),
+      places_(std::move(places)),
       queue_(static_cast<std::size_t>(std::max(1, opt_.queue)), OverflowPolicy::kDropNewest) {
   if (!voc_ || voc_->empty()) fail("LoopClosing: no vocabulary");
+  if (!places_) places_ = std::make_shared<PlaceRecognition>(voc_);
+  if (!mapping_) own_mapper_ = std::make_unique<LocalMapper>(map_, MappingOptions{});
+  if (places_->vocabularyPtr() != voc_ && places_->vocabulary().wordCount() != voc_->wordCount())
+    fail("LoopClosing: the place database's vocabulary has {} words, the loop closer's {}",
+         places_->vocabulary().wordCount(), voc_->wordCount());
 }
 
 LoopClosing::~LoopClosing() { stop(); }
@@ -100,6 +105,7 @@ void LoopClosing::start() {
 void LoopClosing::stop() {
   queue_.close();
   if (thread_.joinable()) thread_.join();
+  stopGlobalBa();
   idle_cv_.notify_all();
 }
 
@@ -116,7 +122,8 @@ bool LoopClosing::submit(KeyframeId id) {
 
 void LoopClosing::waitIdle() const {
   std::unique_lock<std::mutex> lock(mutex_);
-  while (pending_.load() != 0 && thread_.joinable()) idle_cv_.wait_for(lock, std::chrono::milliseconds(5));
+  while ((pending_.load() != 0 && thread_.joinable()) || gba_running_.load())
+    idle_cv_.wait_for(lock, std::chrono::milliseconds(5));
 }
 
 void LoopClosing::run() {
@@ -141,6 +148,7 @@ void LoopClosing::process(KeyframeId id) {
   if (!loop) return;
   LoopClosureRecord rec;
   if (correct(*loop, &rec)) {
+    if (opt_.global_ba) startGlobalBa();
     spdlog::info(
         "loop closed: keyframe {} (frame {}) with keyframe {} (frame {}): scale {:.4f}, {} Sim(3) inliers, {} matches "
         "by projection, {} points fused, the keyframe moved {:.3f} / {:.2f} deg; {:.0f} ms to find, {:.0f} ms to "
@@ -178,7 +186,7 @@ std::optional<LoopCandidate> LoopClosing::detect(KeyframeId id) {
   const bool too_early = static_cast<int>(map_.numKeyframes()) < opt_.min_keyframes ||
                          (last_loop_kf_ >= 0 && id - last_loop_kf_ < opt_.min_keyframe_gap);
   if (too_early) {
-    db_.add(uint64_t(id), mine->bow);
+    places_->add(id, mine->bow);
     record_time();
     return std::nullopt;
   }
@@ -201,7 +209,7 @@ std::optional<LoopCandidate> LoopClosing::detect(KeyframeId id) {
     q.min_score = min_score;
     q.max_results = static_cast<size_t>(opt_.max_candidates);
     q.exclude = [&](uint64_t k) { return neighbours.count(static_cast<KeyframeId>(k)) > 0; };
-    cands = db_.query(mine->bow, q);
+    cands = places_->query(mine->bow, q);
   }
   // Consistency: a candidate's group (it and its covisible keyframes) must meet a group of the
   // previous keyframe's candidates; the count of consecutive meetings is carried over.
@@ -210,7 +218,7 @@ std::optional<LoopCandidate> LoopClosing::detect(KeyframeId id) {
   for (const PlaceCandidate& c : cands) {
     const KeyframeId cid = static_cast<KeyframeId>(c.keyframe);
     if (!map_.keyframe(cid)) {  // culled since: out of the database
-      db_.erase(c.keyframe);
+      places_->erase(cid);
       bows_.erase(cid);
       continue;
     }
@@ -231,7 +239,7 @@ std::optional<LoopCandidate> LoopClosing::detect(KeyframeId id) {
     found = checkGeometry(kf, *mine, cid);
     if (found) break;
   }
-  db_.add(uint64_t(id), mine->bow);
+  places_->add(id, mine->bow);
   if (found) {
     found->detection_ms = sw.elapsedMs();
     groups_.clear();
@@ -316,6 +324,7 @@ std::optional<LoopCandidate> LoopClosing::checkGeometry(const Keyframe& cur, con
 }
 
 bool LoopClosing::correct(const LoopCandidate& loop, LoopClosureRecord* record) {
+  stopGlobalBa();  // a new closure: the running global BA's result is out of date
   Stopwatch sw;
   std::optional<MappingThread::Hold> hold;
   if (mapping_) hold.emplace(mapping_->hold());
@@ -471,8 +480,134 @@ bool LoopClosing::correct(const LoopCandidate& loop, LoopClosureRecord* record) 
   return true;
 }
 
+void LoopClosing::startGlobalBa() {
+  stopGlobalBa();
+  gba_running_.store(true);
+  gba_thread_ = std::thread([this] {
+    setThreadName("nerfslam-gba");
+    try {
+      runGlobalBa();
+    } catch (const std::exception& e) {
+      spdlog::error("loop closing: global BA: {}", e.what());
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      gba_running_.store(false);
+    }
+    idle_cv_.notify_all();
+  });
+}
+
+void LoopClosing::stopGlobalBa() {
+  gba_stop_.store(true);
+  if (gba_thread_.joinable()) gba_thread_.join();
+  gba_stop_.store(false);
+}
+
+bool LoopClosing::runGlobalBa(GlobalBaRecord* record) {
+  GlobalBaRecord rec;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    rec.closure = static_cast<int>(closures_.size()) - 1;
+  }
+  LocalMapper& mapper = mapping_ ? mapping_->mapper() : *own_mapper_;
+  Stopwatch sw;
+  MapUpdate solution;
+  const BaResult r = mapper.solveGlobalBundleAdjustment(
+      opt_.global_ba_iterations, [this] { return gba_stop_.load(); }, &solution);
+  rec.solve_ms = sw.elapsedMs();
+  rec.keyframes = static_cast<int>(solution.keyframe_poses.size());
+  rec.points = static_cast<int>(solution.point_positions.size());
+  rec.iterations = r.iterations;
+  rec.outliers = r.outliers;
+  rec.rmse_before_px = r.initial_rmse_px;
+  rec.rmse_after_px = r.final_rmse_px;
+  rec.stopped = gba_stop_.load();
+  if (!rec.stopped && !solution.keyframe_poses.empty()) writeGlobalBa(solution, &rec);
+  spdlog::info(
+      "loop closing: global BA after closure {}: {} keyframes, {} points, rmse {:.2f} -> {:.2f} px, {} iterations, "
+      "{:.0f} ms{}",
+      rec.closure + 1, rec.keyframes, rec.points, rec.rmse_before_px, rec.rmse_after_px, rec.iterations, rec.solve_ms,
+      rec.stopped ? ", stopped (nothing written)"
+                  : fmt::format("; written in {:.0f} ms ({} keyframes and {} points made meanwhile moved with it)",
+                                rec.write_ms, rec.propagated_keyframes, rec.propagated_points));
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    gbas_.push_back(rec);
+  }
+  if (record) *record = rec;
+  return !rec.stopped;
+}
+
+void LoopClosing::writeGlobalBa(const MapUpdate& solution, GlobalBaRecord* record) {
+  Stopwatch sw;
+  std::optional<MappingThread::Hold> hold;
+  if (mapping_) hold.emplace(mapping_->hold());
+  const auto [kfs, pts] = map_.snapshot();
+  std::unordered_map<KeyframeId, SE3> solved(solution.keyframe_poses.begin(), solution.keyframe_poses.end());
+  std::map<KeyframeId, SE3> now, after;
+  std::set<KeyframeId> adjusted;  // in the global BA (fixed ones included)
+  for (const Keyframe& k : kfs) {
+    now[k.id] = k.T_world_cam;
+    const auto it = solved.find(k.id);
+    if (k.fixed || it != solved.end()) {
+      after[k.id] = k.fixed ? k.T_world_cam : it->second;
+      adjusted.insert(k.id);
+    }
+  }
+  // Keyframes made meanwhile (oldest first) keep their pose relative to their parent.
+  int propagated_kfs = 0;
+  for (const Keyframe& k : kfs) {
+    if (adjusted.count(k.id)) continue;
+    KeyframeId parent = -1;
+    for (const auto& [n, w] : map_.covisibleKeyframes(k.id, 1))
+      if (adjusted.count(n)) {
+        parent = n;
+        break;
+      }
+    if (parent < 0) {
+      const auto it = after.lower_bound(k.id);
+      if (it != after.begin()) parent = std::prev(it)->first;
+    }
+    if (parent < 0) continue;
+    after[k.id] = after.at(parent) * now.at(parent).inverse() * k.T_world_cam;
+    ++propagated_kfs;
+  }
+  MapUpdate up;
+  for (const auto& [k, T] : after) up.keyframe_poses.emplace_back(k, T);
+  std::unordered_map<PointId, Eigen::Vector3d> solved_points(solution.point_positions.begin(),
+                                                             solution.point_positions.end());
+  int propagated_pts = 0;
+  for (const MapPoint& p : pts) {
+    const auto it = solved_points.find(p.id);
+    if (it != solved_points.end()) {
+      up.point_positions.emplace_back(p.id, it->second);
+      continue;
+    }
+    if (p.observations.empty()) continue;
+    const KeyframeId ref = p.observations.begin()->first;
+    const auto a = after.find(ref);
+    if (a == after.end()) continue;
+    up.point_positions.emplace_back(p.id, a->second * (now.at(ref).inverse() * p.position));
+    ++propagated_pts;
+  }
+  up.erase_observations = solution.erase_observations;
+  map_.applyUpdate(up);
+  if (record) {
+    record->propagated_keyframes = propagated_kfs;
+    record->propagated_points = propagated_pts;
+    record->write_ms = sw.elapsedMs();
+  }
+}
+
+std::vector<GlobalBaRecord> LoopClosing::globalBas() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return gbas_;
+}
+
 void LoopClosing::clear() {
-  db_.clear();
+  stopGlobalBa();
+  places_->clear();
   bows_.clear();
   groups_.clear();
   last_loop_kf_ = -1;

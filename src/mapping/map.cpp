@@ -5,7 +5,9 @@
 #include <cstdint>
 #include <cstring>
 #include <mutex>
+#include <optional>
 #include <set>
+#include <unordered_set>
 
 #include "nerfslam/core/error.h"
 
@@ -625,31 +627,21 @@ bool Map::refreshLocalMap(TrackingLocalMap* m, bool wait) const {
   return true;
 }
 
-DescriptorVoteTable Map::descriptorVoteTable() const {
-  auto lock = lockShared(mutex_);
-  std::vector<PointId> ids;
-  ids.reserve(points_.size());
-  for (const auto& [id, p] : points_) ids.push_back(id);
-  std::sort(ids.begin(), ids.end());
-  DescriptorVoteTable table;
-  table.descriptors.reserve(ids.size() * DescriptorVoteTable::kDescriptorBytes);
-  table.observer_begin.reserve(ids.size() + 1);
-  std::vector<KeyframeId> observed_by;
-  for (PointId id : ids) {
-    const MapPoint& p = points_.at(id);
-    if (p.descriptor.empty() || p.descriptor.total() * p.descriptor.elemSize() != DescriptorVoteTable::kDescriptorBytes)
-      continue;
-    observed_by.clear();
-    for (const auto& [kf, idx] : p.observations) observed_by.push_back(kf);
-    table.add(p.descriptor.ptr<uint8_t>(), observed_by);
-  }
-  return table;
-}
-
 std::vector<RelocalizationCandidate> Map::relocalizationCandidates(const std::vector<KeyframeId>& order,
-                                                                   size_t max_candidates) const {
+                                                                   size_t max_candidates,
+                                                                   int neighbour_keyframes) const {
   auto lock = lockShared(mutex_);
   std::vector<RelocalizationCandidate> out;
+  auto point = [this](PointId pid) -> std::optional<TrackingMapPoint> {
+    if (pid == kNoPoint) return std::nullopt;
+    const auto pit = points_.find(pid);
+    if (pit == points_.end() || pit->second.descriptor.empty()) return std::nullopt;
+    TrackingMapPoint t;
+    t.id = static_cast<uint64_t>(pid);
+    t.p_world = pit->second.position;
+    t.descriptor = pit->second.descriptor;  // shares the buffer: descriptors are replaced, never written in place
+    return t;
+  };
   for (KeyframeId id : order) {
     if (out.size() >= max_candidates) break;
     const auto kit = keyframes_.find(id);
@@ -657,15 +649,16 @@ std::vector<RelocalizationCandidate> Map::relocalizationCandidates(const std::ve
     RelocalizationCandidate c;
     c.keyframe_id = static_cast<uint64_t>(id);
     c.T_world_cam = kit->second.T_world_cam;
-    for (PointId pid : kit->second.points) {
-      if (pid == kNoPoint) continue;
-      const auto pit = points_.find(pid);
-      if (pit == points_.end() || pit->second.descriptor.empty()) continue;
-      TrackingMapPoint t;
-      t.id = static_cast<uint64_t>(pid);
-      t.p_world = pit->second.position;
-      t.descriptor = pit->second.descriptor;  // shares the buffer: descriptors are replaced, never written in place
-      c.points.push_back(std::move(t));
+    std::unordered_set<PointId> seen;
+    for (PointId pid : kit->second.points)
+      if (auto t = point(pid); t && seen.insert(pid).second) c.points.push_back(std::move(*t));
+    const auto covisible = covisibleLocked(id, 1);
+    const size_t n = std::min(covisible.size(), static_cast<size_t>(std::max(0, neighbour_keyframes)));
+    for (size_t i = 0; i < n; ++i) {
+      const auto nit = keyframes_.find(covisible[i].first);
+      if (nit == keyframes_.end()) continue;
+      for (PointId pid : nit->second.points)
+        if (auto t = point(pid); t && seen.insert(pid).second) c.neighbours.push_back(std::move(*t));
     }
     out.push_back(std::move(c));
   }

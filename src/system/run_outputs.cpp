@@ -16,6 +16,7 @@
 #include "nerfslam/core/input_file.h"
 #include "nerfslam/core/statistics.h"
 #include "nerfslam/eval/image_metrics.h"
+#include "nerfslam/eval/trajectory_metrics.h"
 #include "nerfslam/io/image_io.h"
 #include "nerfslam/nerf/export.h"
 #include "nerfslam/nerf/renderer.h"
@@ -193,10 +194,30 @@ cv::Mat mapPreview(const SlamSystem& slam, const Trajectory& traj, const Preview
   return renderPreview(scene, po);
 }
 
+// The poses as tracked, before the loop closer corrected the map (FrameRecord::T_world_cam), with
+// their own Sim(3) alignment to the ground truth: when a loop was closed and there is ground truth.
+struct AsTracked {
+  Trajectory trajectory;
+  TrajectoryReport eval;
+};
+std::optional<AsTracked> asTrackedEval(const SlamSystem& slam, const Trajectory& gt) {
+  if (gt.empty() || !slam.loopClosing() || slam.loopClosing()->closures().empty()) return std::nullopt;
+  AsTracked a;
+  for (const FrameRecord& r : slam.records())
+    if (r.tracked) a.trajectory.push_back({r.timestamp, r.T_world_cam});
+  if (a.trajectory.size() < 3) return std::nullopt;
+  TrajectoryEvalOptions eo;
+  eo.align = "sim3";
+  eo.max_dt = 1e-3;
+  a.eval = evaluateTrajectory(gt, a.trajectory, eo);
+  return a;
+}
+
 // trajectory.png: a top view with axes; with ground truth the Sim(3)-aligned estimate on it in metres
-// and the ATE in the title, otherwise the estimate alone in map units.
+// and the ATE in the title (and, after a loop closure, the poses as tracked before the corrections,
+// aligned on their own), otherwise the estimate alone in map units.
 TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& gt, const std::optional<Sim3>& align,
-                              const nlohmann::json& rep) {
+                              const nlohmann::json& rep, const std::optional<AsTracked>& as_tracked) {
   auto positions = [](const Trajectory& t, const Sim3& s) {
     std::vector<Eigen::Vector3d> p;
     for (const auto& e : t) p.push_back(s * e.pose.translation());
@@ -208,6 +229,11 @@ TrajectoryPlot trajectoryPlot(const Trajectory& traj, const Trajectory& gt, cons
   if (!gt.empty() && align) {
     o.up = upFromCameras(posesOf(gt));
     series.push_back({positions(gt, Sim3()), {150, 150, 150}, "ground truth"});
+    if (as_tracked)
+      series.push_back(
+          {positions(as_tracked->trajectory, as_tracked->eval.alignment),
+           {60, 60, 220},
+           fmt::format("as tracked, before the loop corrections (ATE {:.3g} %)", as_tracked->eval.ape_rmse_percent)});
     series.push_back({positions(traj, *align), est_color, "estimate"});
     o.title = rep.contains("ate_rmse_m")
                   ? fmt::format("ATE RMSE {:.3g} m = {:.3g} % of the {:.3g} m path ({} frames, Sim(3)-aligned)",
@@ -553,7 +579,9 @@ void writeRunPreviews(const SlamSystem& slam, const Trajectory& traj, const Traj
   }
   if (traj.size() < 2) return;
   try {
-    writePng(out / "trajectory.png", trajectoryPlot(traj, gt, align, rep).image);
+    const std::optional<AsTracked> as_tracked = align ? asTrackedEval(slam, gt) : std::nullopt;
+    if (as_tracked) rep["ate_percent_of_path_as_tracked"] = as_tracked->eval.ape_rmse_percent;
+    writePng(out / "trajectory.png", trajectoryPlot(traj, gt, align, rep, as_tracked).image);
     addRunOutput(rep, "trajectory.png");
   } catch (const std::exception& e) {
     spdlog::warn("trajectory.png not written: {}", e.what());

@@ -457,6 +457,30 @@ void addLoopClosing(const SlamSystem& slam, nlohmann::json& rep) {
   };
   rep["loop_closing_ms"] = {{"detection", summary(lc->detectionTimes())}, {"correction", summary(correction)}};
   rep["loop_closing_dropped_keyframes"] = lc->droppedKeyframes();
+  // The background global BAs after the closures: the written ones' times, and each one.
+  std::vector<double> gba_ms;
+  int gba_stopped = 0;
+  rep["global_bas"] = nlohmann::json::array();
+  for (const GlobalBaRecord& g : lc->globalBas()) {
+    if (g.stopped)
+      ++gba_stopped;
+    else
+      gba_ms.push_back(g.solve_ms + g.write_ms);
+    rep["global_bas"].push_back({{"after_closure", g.closure},
+                                 {"keyframes", g.keyframes},
+                                 {"points", g.points},
+                                 {"iterations", g.iterations},
+                                 {"outliers", g.outliers},
+                                 {"rmse_before_px", g.rmse_before_px},
+                                 {"rmse_after_px", g.rmse_after_px},
+                                 {"propagated_keyframes", g.propagated_keyframes},
+                                 {"propagated_points", g.propagated_points},
+                                 {"stopped", g.stopped},
+                                 {"solve_ms", g.solve_ms},
+                                 {"write_ms", g.write_ms}});
+  }
+  rep["global_ba_ms"] = summary(gba_ms);
+  rep["global_ba_stopped"] = gba_stopped;
   rep["loop_corrections_applied_by_tracking"] = slam.loopCorrectionsApplied();
 }
 
@@ -479,6 +503,18 @@ nlohmann::json runReport(const Dataset& ds, const RunOptions& ro, const SlamSyst
   rep["mode"] = toString(slam.mapMode());
   rep["map_loaded"] = ro.map ? nlohmann::json(ro.map->string()) : nlohmann::json(nullptr);
   rep["relocalized_at_frame"] = slam.relocalizedAtFrame();
+  {  // CPU time of each relocalisation attempt (keyframe-database query, then PnP on the candidates)
+    std::vector<double> ms;
+    for (const FrameRecord& r : slam.records())
+      if (r.relocalization_attempted) ms.push_back(r.relocalize_cpu_ms);
+    std::sort(ms.begin(), ms.end());
+    nlohmann::json j = {{"attempts", ms.size()}};
+    if (!ms.empty()) {
+      j["median"] = ms[ms.size() / 2];
+      j["max"] = ms.back();
+    }
+    rep["relocalization_cpu_ms"] = j;
+  }
   if (ro.map) {
     rep["map_loaded_keyframes"] = start.keyframes;
     rep["map_loaded_points"] = start.points;

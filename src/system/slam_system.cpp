@@ -10,7 +10,6 @@
 #include "nerfslam/core/error.h"
 #include "nerfslam/core/timing.h"
 #include "nerfslam/tracking/initializer.h"
-#include "nerfslam/tracking/keyframe_vote.h"
 #include "nerfslam/tracking/relocalizer.h"
 #include "nerfslam/tracking/tracker.h"
 #include "nerfslam/tracking/tracking_policy.h"
@@ -77,11 +76,23 @@ SlamSystem::SlamSystem(const Camera& camera, SystemOptions options, std::unique_
   mapping_ = std::make_unique<MappingThread>(*map_, opt_.mapping, static_cast<std::size_t>(opt_.keyframe_queue));
   initializer_ = std::make_unique<Initializer>(opt_.tracking.initializer);
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
-  if (opt_.loop_closing.enabled) {
-    // A missing or bad vocabulary file is an Error naming it (loadVocabulary).
+  {
+    // The keyframe database, for relocalisation and loop closing. A missing or bad vocabulary file
+    // is an Error naming it (loadVocabulary).
     auto voc = std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(opt_.loop_closing.vocabulary)));
-    loop_ = std::make_unique<LoopClosing>(*map_, mapping_.get(), std::move(voc), opt_.loop_closing);
-    mapping_->setKeyframeProcessed([this](KeyframeId id) { loop_->submit(id); });
+    places_ = std::make_shared<PlaceRecognition>(voc);
+    if (map_mode_ != MapMode::kSlam) {  // map folders do not store it: rebuilt from the keyframes
+      Stopwatch sw;
+      const size_t n = places_->addMapKeyframes(*map_);
+      spdlog::info("keyframe database: not stored with the map, rebuilt from its {} keyframes in {:.0f} ms", n,
+                   sw.elapsedMs());
+    }
+    if (opt_.loop_closing.enabled)
+      loop_ = std::make_unique<LoopClosing>(*map_, mapping_.get(), std::move(voc), opt_.loop_closing, places_);
+    // The loop closer adds the keyframes it is given (after its own query); the others are added here.
+    mapping_->setKeyframeProcessed([this](KeyframeId id) {
+      if (!loop_ || !loop_->submit(id)) places_->addKeyframe(*map_, id);
+    });
   }
   if (opt_.nerf.enabled) nerf_ = std::make_unique<NerfMapping>(*map_, mapping_->bus(), opt_.nerf);
   if (loop_) loop_->start();
@@ -100,6 +111,7 @@ void SlamSystem::reset() {
   pollInitialization();  // frames tracked against the map being discarded are discarded with it below
   map_->clear();
   if (loop_) loop_->clear();  // idle: nothing is submitted while the tracking thread resets
+  places_->clear();
   initializer_->reset();
   tracker_ = std::make_unique<Tracker>(opt_.tracking.tracker);
   state_ = TrackingState::kNotInitialized;
@@ -345,6 +357,7 @@ void SlamSystem::trackAgainstMap(const std::shared_ptr<const Frame>& frame, bool
   if (res.quality == TrackingQuality::kLost || weak_retry) {
     relocalized = relocalizeFrame(*frame, weak_retry, localize_only, res, rec);
     rec.relocalize_cpu_ms = lap();
+    rec.relocalization_attempted = true;
   }
   if (const auto refused = refuseWeakPose(res, relocalized, state_ == TrackingState::kLost, last_inliers_, weak)) {
     rec.message = *refused;
@@ -389,13 +402,18 @@ bool SlamSystem::relocalizeFrame(const Frame& frame, bool weak_retry, bool local
                                  FrameRecord& rec) {
   const std::vector<KeyframeId> ids = map_->keyframeIds();
   std::vector<KeyframeId> voted;
-  if (relocalizeAnywhere(map_mode_ != MapMode::kSlam, localize_only, res.quality))
-    voted = keyframesByDescriptorVotes(frame, map_->descriptorVoteTable(), opt_.relocalization_candidates);
+  if (relocalizeAnywhere(map_mode_ != MapMode::kSlam, localize_only, res.quality)) {
+    RelocalizationQuery q;
+    q.max_candidates = static_cast<size_t>(opt_.relocalization_candidates);
+    voted = places_->relocalizationCandidates(*map_, places_->bagOfWords(frame), q);
+  }
   const RelocalizationChoice choice = chooseRelocalizationKeyframes(ids, voted, opt_.relocalization_candidates);
   const RelocalizationResult rl =
       relocalize(frame, map_->relocalizationCandidates(choice.keyframes, choice.max_candidates),
                  opt_.tracking.relocalizer, opt_.tracking.tracker.optimizer);
   if (!rl.success) {
+    spdlog::debug("frame {}: relocalisation failed; keyframe-database candidates [{}]: {}", frame.id,
+                  fmt::join(voted, ", "), rl.reason);
     if (!weak_retry)
       rec.message = "lost: " + (res.message.empty() ? std::string("too few inliers") : res.message) +
                     "; relocalisation: " + rl.reason;

@@ -72,6 +72,7 @@ RelocalizationResult relocalize(const Frame& frame, const std::vector<Relocaliza
   const Eigen::Matrix3d K = frame.camera.K();
   const cv::Mat cvK = frame.camera.cvK();
   std::string details;
+  std::vector<TrackingMapPoint> all;  // a candidate's points, then its neighbours'
   for (const RelocalizationCandidate& c : candidates) {
     std::vector<MapMatch> m = matchDescriptors(frame, c.points, opt);
     if (static_cast<int>(m.size()) < opt.min_matches) {
@@ -106,23 +107,37 @@ RelocalizationResult relocalize(const Frame& frame, const std::vector<Relocaliza
     cv::cv2eigen(Rcv, R);
     cv::cv2eigen(tvec, t);
     SE3 pose = SE3(R, t).inverse();
-    PoseOptimizationResult o = optimizePose(K, toObservations(frame, c.points, m), pose, optimizer);
-    if (!o.converged) continue;
-    pose = o.T_world_cam;
-    // Re-track all of this keyframe's points by projection around the PnP pose.
+    all = c.points;
+    all.insert(all.end(), c.neighbours.begin(), c.neighbours.end());
+    PoseOptimizationResult o = optimizePose(K, toObservations(frame, all, m), pose, optimizer);
+    if (!o.converged) {
+      details += fmt::format(" kf {}: pose optimisation failed;", c.keyframe_id);
+      continue;
+    }
+    const int pnp_inliers = o.num_inliers;
+    // Guided search: project the candidate's and its neighbours' points with the pose for more
+    // matches, and optimise again (a wide window first, then a narrow one when still short).
     TrackerOptions to;
     to.optimizer = optimizer;
-    to.max_descriptor_distance = opt.max_descriptor_distance;
+    to.max_descriptor_distance = opt.guided_max_descriptor_distance;
     to.ratio = opt.ratio;
-    std::vector<MapMatch> m2 = matchByProjection(frame, c.points, pose, 8.0, to);
-    if (m2.size() > m.size()) {
-      PoseOptimizationResult o2 = optimizePose(K, toObservations(frame, c.points, m2), pose, optimizer);
-      if (o2.converged && o2.num_inliers >= o.num_inliers) {
-        o = o2;
-        m = m2;
+    auto extend = [&](double radius) {
+      std::vector<MapMatch> m2 = matchByProjection(frame, all, o.T_world_cam, radius, to);
+      if (static_cast<int>(m2.size()) <= o.num_inliers) return;
+      PoseOptimizationResult o2 = optimizePose(K, toObservations(frame, all, m2), o.T_world_cam, optimizer);
+      if (o2.converged && o2.num_inliers > o.num_inliers) {
+        o = std::move(o2);
+        m = std::move(m2);
       }
+    };
+    if (o.num_inliers < opt.guided_search_below) {
+      extend(opt.guided_radius_px);
+      if (o.num_inliers < opt.guided_search_below && o.num_inliers > opt.guided_search_below * 3 / 5)
+        extend(opt.guided_fine_radius_px);
     }
-    details += fmt::format(" kf {}: {} inliers;", c.keyframe_id, o.num_inliers);
+    details += o.num_inliers == pnp_inliers ? fmt::format(" kf {}: {} inliers;", c.keyframe_id, o.num_inliers)
+                                            : fmt::format(" kf {}: {} inliers ({} before the guided search);",
+                                                          c.keyframe_id, o.num_inliers, pnp_inliers);
     if (o.num_inliers >= opt.min_inliers && o.num_inliers > best.num_inliers) {
       best.success = true;
       best.keyframe_id = c.keyframe_id;
@@ -137,8 +152,9 @@ RelocalizationResult relocalize(const Frame& frame, const std::vector<Relocaliza
   }
   if (!best.success && !candidates.empty()) best.reason += fmt::format(" ({} need {})", details, opt.min_inliers);
   spdlog::info("relocalisation of frame {}: {}", frame.id,
-               best.success ? fmt::format("ok against keyframe {} ({} inliers)", best.keyframe_id, best.num_inliers)
-                            : best.reason);
+               best.success
+                   ? fmt::format("ok against keyframe {} ({} inliers;{})", best.keyframe_id, best.num_inliers, details)
+                   : best.reason);
   return best;
 }
 

@@ -4,7 +4,10 @@
 // vocabulary, keyframe n drawing image n modulo their number and a random 70 % of its features
 // (so that no two keyframes are alike). Queries: a different 70 % of each image. Printed: median and
 // p99 query time, postings walked and candidates scored per query. Google Benchmark timings follow
-// (queries, and the bag of words of one image).
+// (queries, and the bag of words of one image). Then relocalisation's candidate query
+// (PlaceRecognition::relocalizationCandidates: the database query, the covisibility of the keyframes
+// sharing the most words, the groups) on a map of 50, 500 and 5,000 keyframes with those bags, each
+// keyframe covisible with the next (30 shared points).
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
@@ -16,6 +19,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "nerfslam/core/timing.h"
+#include "nerfslam/mapping/place_recognition.h"
 #include "nerfslam/tracking/frame.h"
 #include "nerfslam/tracking/keyframe_database.h"
 #include "test_support.h"
@@ -106,6 +110,53 @@ void printTable() {
   }
 }
 
+// The map's keyframes: 200 keypoints with random descriptors (the map needs a frame per keyframe;
+// the bags come from the images), consecutive keyframes sharing 30 points.
+void printRelocalizationTable() {
+  const Data& d = data();
+  if (d.descriptors.empty()) return;
+  auto voc = std::make_shared<const Vocabulary>(d.voc);
+  std::mt19937 qrng(99);
+  std::vector<BowVector> queries;
+  for (size_t i = 0; i < d.descriptors.size(); ++i) queries.push_back(subsetBow(d, i, qrng));
+  std::printf("\nrelocalisation candidates (PlaceRecognition::relocalizationCandidates, 5 kept)\n");
+  std::printf("%10s %12s %12s %12s\n", "keyframes", "median ms", "p99 ms", "candidates");
+  for (size_t n : {50, 500, 5000}) {
+    Map map;
+    PlaceRecognition places(voc);
+    std::mt19937 rng{static_cast<uint32_t>(n)};
+    std::vector<KeyframeId> ids;
+    for (size_t k = 0; k < n; ++k) {
+      auto f = std::make_shared<Frame>();
+      f->descriptors = cv::Mat(200, 32, CV_8U);
+      cv::randu(f->descriptors, 0, 256);
+      for (int i = 0; i < 200; ++i) {
+        f->keypoints.emplace_back(cv::Point2f(float(i), float(i)), 7.f);
+        f->undistorted.emplace_back(i, i);
+      }
+      Keyframe kf;
+      kf.frame = f;
+      ids.push_back(map.addKeyframe(kf));
+      places.add(ids.back(), subsetBow(d, k % d.descriptors.size(), rng));
+      if (k > 0)
+        for (int j = 0; j < 30; ++j)
+          map.addPoint(Eigen::Vector3d(double(k), double(j), 5.0), {{ids[k - 1], 100 + j}, {ids[k], j}});
+    }
+    std::vector<double> ms;
+    double kept = 0;
+    for (int rep = 0; rep < 3; ++rep)
+      for (const BowVector& b : queries) {
+        const double t0 = threadCpuMs();
+        const auto r = places.relocalizationCandidates(map, b);
+        ms.push_back(threadCpuMs() - t0);
+        if (rep == 0) kept += double(r.size());
+      }
+    std::sort(ms.begin(), ms.end());
+    std::printf("%10zu %12.3f %12.3f %12.1f\n", n, ms[ms.size() / 2], ms[size_t(0.99 * double(ms.size()))],
+                kept / double(queries.size()));
+  }
+}
+
 void BM_Query(benchmark::State& state) {
   const Data& d = data();
   if (d.descriptors.empty()) {
@@ -146,6 +197,7 @@ BENCHMARK(BM_Transform)->Unit(benchmark::kMicrosecond);
 
 int main(int argc, char** argv) {
   nerfslam::printTable();
+  nerfslam::printRelocalizationTable();
   benchmark::Initialize(&argc, argv);
   benchmark::RunSpecifiedBenchmarks();
   return 0;

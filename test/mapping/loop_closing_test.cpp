@@ -7,13 +7,16 @@
 // bring the second lap back onto the first and fuse the duplicated points.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <map>
 #include <memory>
 #include <random>
 #include <thread>
 #include <vector>
 
+#include "nerfslam/mapping/local_mapper.h"
 #include "nerfslam/mapping/loop_closing.h"
 #include "nerfslam/mapping/map.h"
 #include "nerfslam/mapping/mapping_thread.h"
@@ -159,6 +162,122 @@ TEST(LoopClosingMap, DetectsTheRevisitAfterThreeKeyframesAndCorrectsTheDrift) {
   EXPECT_NEAR(delta.at(loop->loop).scale(), 1.0, 1e-9);
 }
 
+// The global BA after the closure: the share of the drift the essential graph kept goes (every
+// keypoint sits at its point's exact projection), measured on the second lap's keyframe centres.
+double maxCentreError(const Map& map, const Scene& s, const std::vector<KeyframeId>& lap) {
+  double e = 0;
+  for (int k = 0; k < kKeyframesPerLap; ++k)
+    e = std::max(e, (map.keyframe(lap[k])->centre() - s.poses[k].translation()).norm());
+  return e;
+}
+
+std::optional<LoopCandidate> firstLoop(LoopClosing& lc, const Map& map) {
+  for (KeyframeId id : map.keyframeIds())
+    if (auto loop = lc.detect(id)) return loop;
+  return std::nullopt;
+}
+
+TEST(LoopClosingMap, GlobalBaAfterTheClosureRemovesTheDriftTheGraphKept) {
+  const Scene s = makeScene();
+  Map map(s.camera);
+  addLap(map, s, Sim3(), 0);
+  const auto lap2 = addLap(map, s, secondLapDrift(), 100);
+  LoopClosingOptions o;
+  o.min_keyframes = 2;
+  o.min_keyframe_gap = 0;
+  LoopClosing lc(map, nullptr, std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
+  const auto loop = firstLoop(lc, map);
+  ASSERT_TRUE(loop.has_value());
+  ASSERT_TRUE(lc.correct(*loop));
+  const double after_graph = maxCentreError(map, s, lap2);
+  GlobalBaRecord g;
+  ASSERT_TRUE(lc.runGlobalBa(&g));
+  const double after_ba = maxCentreError(map, s, lap2);
+  std::printf("second lap's largest keyframe error: %.4f after the essential graph, %.4f after the global BA\n",
+              after_graph, after_ba);
+  EXPECT_GT(after_graph, 0.01);
+  EXPECT_LT(after_ba, 0.25 * after_graph);
+  EXPECT_FALSE(g.stopped);
+  EXPECT_EQ(g.closure, 0);
+  EXPECT_EQ(g.keyframes, int(map.numKeyframes()) - 1);  // the first keyframe is fixed
+  EXPECT_EQ(g.points, int(map.numPoints()));
+  EXPECT_LT(g.rmse_after_px, g.rmse_before_px);
+  EXPECT_EQ(g.propagated_keyframes, 0);
+  ASSERT_EQ(lc.globalBas().size(), 1u);
+}
+
+// What the mapping thread made while the global BA was solving: a keyframe keeps its pose relative
+// to its parent (the adjusted keyframe it shares the most points with), a point its position in its
+// reference keyframe's camera.
+TEST(LoopClosingMap, GlobalBaMovesWhatWasMadeMeanwhileWithItsParent) {
+  const Scene s = makeScene();
+  Map map(s.camera);
+  addLap(map, s, Sim3(), 0);
+  const auto lap2 = addLap(map, s, secondLapDrift(), 100);
+  LoopClosingOptions o;
+  o.min_keyframes = 2;
+  o.min_keyframe_gap = 0;
+  LoopClosing lc(map, nullptr, std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
+  const auto loop = firstLoop(lc, map);
+  ASSERT_TRUE(loop.has_value());
+  ASSERT_TRUE(lc.correct(*loop));
+  LocalMapper mapper(map, MappingOptions{});
+  MapUpdate solution;
+  mapper.solveGlobalBundleAdjustment(10, {}, &solution);
+  ASSERT_FALSE(solution.keyframe_poses.empty());
+  // Made meanwhile: two keyframes beside the last one, each sharing 40 of its points, and a point
+  // the two of them observe at a keypoint of their own.
+  const KeyframeId parent = lap2.back();
+  const Keyframe pk = *map.keyframe(parent);
+  const int extra = static_cast<int>(pk.frame->size());
+  const auto makeChild = [&](double dx) {
+    auto f = std::make_shared<Frame>(*pk.frame);
+    f->id += 500;
+    f->keypoints.emplace_back(cv::Point2f(320.f, 240.f), 31.f, 0.f, 1.f, 0);
+    f->undistorted.emplace_back(320.0, 240.0);
+    cv::Mat d = f->descriptors.clone();
+    d.push_back(cv::Mat(1, 32, CV_8U, cv::Scalar(7)));
+    f->descriptors = d;
+    f->buildGrid();
+    Keyframe nk;
+    nk.frame = f;
+    nk.T_world_cam = pk.T_world_cam * SE3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(dx, 0, 0));
+    const KeyframeId id = map.addKeyframe(nk);
+    int shared = 0;
+    for (size_t i = 0; i < pk.points.size() && shared < 40; ++i)
+      if (pk.points[i] != kNoPoint) shared += map.addObservation(pk.points[i], id, int(i));
+    EXPECT_EQ(shared, 40);
+    return std::make_pair(id, nk.T_world_cam);
+  };
+  const auto [child, T_child] = makeChild(0.05);
+  const auto [child2, T_child2] = makeChild(0.10);
+  const Eigen::Vector3d p_new = T_child * Eigen::Vector3d(0.1, 0.2, 5.0);
+  const PointId np = map.addPoint(p_new, {{child, extra}, {child2, extra}});
+  ASSERT_NE(np, kNoPoint);
+  const SE3 rel_before = pk.T_world_cam.inverse() * T_child;
+  const SE3 rel2_before = pk.T_world_cam.inverse() * T_child2;
+
+  GlobalBaRecord g;
+  lc.writeGlobalBa(solution, &g);
+  EXPECT_EQ(g.propagated_keyframes, 2);
+  EXPECT_EQ(g.propagated_points, 1);
+  const Keyframe pk2 = *map.keyframe(parent), ck2 = *map.keyframe(child);
+  const auto solved = std::find_if(solution.keyframe_poses.begin(), solution.keyframe_poses.end(),
+                                   [&](const auto& kp) { return kp.first == parent; });
+  ASSERT_NE(solved, solution.keyframe_poses.end());
+  EXPECT_LT((pk2.centre() - solved->second.translation()).norm(), 1e-9);  // the parent: the solution's pose
+  EXPECT_GT((pk2.centre() - pk.centre()).norm(), 1e-4);                   // which moved it
+  const SE3 rel_after = pk2.T_world_cam.inverse() * ck2.T_world_cam;
+  EXPECT_LT((rel_after.translation() - rel_before.translation()).norm(), 1e-9);
+  EXPECT_LT(rel_after.rotation().angularDistance(rel_before.rotation()), 1e-9);
+  const SE3 rel2_after = pk2.T_world_cam.inverse() * map.keyframe(child2)->T_world_cam;
+  EXPECT_LT((rel2_after.translation() - rel2_before.translation()).norm(), 1e-9);
+  // The new point keeps its place in its reference keyframe's camera (its first observation).
+  const MapPoint q = *map.point(np);
+  ASSERT_EQ(q.observations.begin()->first, child);
+  EXPECT_LT((ck2.T_world_cam.inverse() * q.position - T_child.inverse() * p_new).norm(), 1e-9);
+}
+
 // loop_closing.consistency counts: with 4, three second-lap keyframes finding the first lap are not
 // enough, the fourth is.
 TEST(LoopClosingMap, NoLoopBeforeTheConsistencyIsReached) {
@@ -199,6 +318,7 @@ TEST(LoopClosingMap, ThreadClosesTheLoopWhileTheMapIsRead) {
   o.min_keyframes = 2;
   o.min_keyframe_gap = 0;
   o.queue = 2 * kKeyframesPerLap;
+  o.global_ba = true;  // off by default; its thread is tested here
   LoopClosing lc(map, &mapping, std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
   lc.start();
   std::atomic<bool> done{false};
@@ -227,6 +347,11 @@ TEST(LoopClosingMap, ThreadClosesTheLoopWhileTheMapIsRead) {
   EXPECT_EQ(lc.corrections(), 1u);
   EXPECT_EQ(lc.droppedKeyframes(), 0u);
   EXPECT_LT((map.keyframe(lap2[0])->centre() - s.poses[0].translation()).norm(), 0.1);
+  // The global BA after the closure ran on its own thread, and waitIdle() waited for it.
+  const auto gbas = lc.globalBas();
+  ASSERT_EQ(gbas.size(), 1u);
+  EXPECT_FALSE(gbas[0].stopped);
+  EXPECT_GT(gbas[0].keyframes, 0);
 }
 
 }  // namespace

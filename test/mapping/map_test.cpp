@@ -219,25 +219,18 @@ TEST(Map, ThreadLockWaitCountsAcquisitions) {
   EXPECT_EQ(Map::threadLockWait().acquisitions, 3u);
 }
 
-// Relocalisation's inputs: every point with a descriptor, by id, with the keyframes observing it;
-// and per keyframe (in the given order, the first max_candidates still in the map) its points.
+// Relocalisation's input: per keyframe (in the given order, the first max_candidates still in the map) its points.
 TEST(Map, RelocalisationInputsFollowThePointsAndKeyframes) {
   Map map;
   const KeyframeId a = map.addKeyframe(makeKf(6, 1));
   const KeyframeId b = map.addKeyframe(makeKf(6, 2, {1, 0, 0}));
   const KeyframeId c = map.addKeyframe(makeKf(6, 3, {2, 0, 0}));
-  const PointId p0 = map.addPoint({0, 0, 5}, {{a, 0}, {b, 0}});
+  map.addPoint({0, 0, 5}, {{a, 0}, {b, 0}});
   const PointId p1 = map.addPoint({1, 0, 5}, {{a, 1}, {c, 1}});
   const PointId p2 = map.addPoint({2, 0, 5}, {{a, 4}, {b, 3}, {c, 2}});
-  const DescriptorVoteTable t = map.descriptorVoteTable();
-  ASSERT_EQ(t.size(), 3u);
-  EXPECT_EQ(t.observers, (std::vector<KeyframeId>{a, b, a, c, a, b, c}));
-  EXPECT_EQ(t.observer_begin, (std::vector<int>{0, 2, 4, 7}));
-  const PointId pids[] = {p0, p1, p2};
-  for (size_t i = 0; i < 3; ++i)
-    EXPECT_EQ(descriptorDistance(t.descriptors.data() + 32 * i, map.point(pids[i])->descriptor.ptr<uint8_t>()), 0);
-
-  map.eraseKeyframe(b);  // p0 goes with it (one observation left)
+  const KeyframeId d = map.addKeyframe(makeKf(6, 4, {3, 0, 0}));
+  const PointId p3 = map.addPoint({3, 0, 5}, {{a, 5}, {d, 5}});  // a's, not c's
+  map.eraseKeyframe(b);                                          // p0 goes with it (one observation left)
   const auto cands = map.relocalizationCandidates({c, b, a}, 5);
   ASSERT_EQ(cands.size(), 2u);  // b is gone
   EXPECT_EQ(cands[0].keyframe_id, static_cast<uint64_t>(c));
@@ -248,9 +241,16 @@ TEST(Map, RelocalisationInputsFollowThePointsAndKeyframes) {
   EXPECT_EQ(cands[0].points[1].id, static_cast<uint64_t>(p2));
   EXPECT_TRUE(cands[0].points[1].p_world.isApprox(Eigen::Vector3d(2, 0, 5)));
   EXPECT_EQ(cv::norm(cands[0].points[1].descriptor, map.point(p2)->descriptor, cv::NORM_HAMMING), 0);
-  ASSERT_EQ(cands[1].points.size(), 2u);
+  ASSERT_EQ(cands[1].points.size(), 3u);
   EXPECT_EQ(cands[1].points[0].id, static_cast<uint64_t>(p1));
   EXPECT_EQ(cands[1].points[1].id, static_cast<uint64_t>(p2));
+  EXPECT_EQ(cands[1].points[2].id, static_cast<uint64_t>(p3));
+  // The neighbours: the points of the covisible keyframes the candidate does not see itself (c's
+  // covisible keyframe is a, which also sees p3; a's are c and d, which see nothing a does not).
+  ASSERT_EQ(cands[0].neighbours.size(), 1u);
+  EXPECT_EQ(cands[0].neighbours[0].id, static_cast<uint64_t>(p3));
+  EXPECT_TRUE(cands[1].neighbours.empty());
+  EXPECT_TRUE(map.relocalizationCandidates({c}, 1, 0)[0].neighbours.empty());
   // At most max_candidates of them.
   const auto one = map.relocalizationCandidates({b, a, c}, 1);
   ASSERT_EQ(one.size(), 1u);

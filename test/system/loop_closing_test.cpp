@@ -144,7 +144,16 @@ TEST(LoopClosing, RoomTwoLapsEveryRevisitClosedAndAteCutByThree) {
   EXPECT_EQ(rep.at("loop_closing_ms").at("correction").at("count").get<std::size_t>(), closures.size());
   EXPECT_GT(rep.at("loop_closing_ms").at("detection").at("count").get<int>(), 10);
   EXPECT_EQ(rep.at("loop_corrections_applied_by_tracking").get<std::size_t>(), closures.size());
+  // No global BA in the background with the defaults (loop_closing.global_ba is off; its thread and
+  // its write are tested in test/mapping/loop_closing_test.cpp).
+  EXPECT_TRUE(rep.at("global_bas").empty());
+  EXPECT_EQ(rep.at("global_ba_ms").at("count").get<std::size_t>(), 0u);
   const double ate_on = rep.at("ate_percent_of_path").get<double>();
+  // The poses as tracked, before the corrections (drawn beside the estimate in trajectory.png).
+  const double ate_tracked = rep.at("ate_percent_of_path_as_tracked").get<double>();
+  std::printf("as tracked, before the loop corrections: ATE %.3f %%\n", ate_tracked);
+  EXPECT_GT(ate_tracked, ate_on);
+  EXPECT_TRUE(std::filesystem::exists(ro.out / "trajectory.png"));
   std::printf("loop closing on: %zu closures, ATE %.3f %% (off: %.3f %%)\n", closures.size(), ate_on, ate_off);
   EXPECT_LE(ate_on, ate_off / 3.0);
   EXPECT_LT(ate_on, 1.0);
@@ -164,9 +173,13 @@ TEST(LoopClosing, BadVocabularyFileIsNamed) {
   o.loop_closing.vocabulary = junk.string();
   err = test::errorOf([&] { SlamSystem s(cam, o); });
   EXPECT_NE(err.find("junk.voc"), std::string::npos) << err;
-  o.loop_closing.enabled = false;  // not read at all when off
+  o.loop_closing.enabled = false;  // read also when off: relocalisation queries the keyframe database
+  err = test::errorOf([&] { SlamSystem s(cam, o); });
+  EXPECT_NE(err.find("junk.voc"), std::string::npos) << err;
+  o.loop_closing.vocabulary.clear();
   SlamSystem s(cam, o);
   EXPECT_EQ(s.loopClosing(), nullptr);
+  EXPECT_EQ(s.places().size(), 0u);
 }
 
 }  // namespace

@@ -170,6 +170,13 @@ TEST(MapStoreCli, LocalizesInASavedMapAlongAnotherTrajectory) {
   EXPECT_EQ(loc.at("mode"), "localize");
   EXPECT_EQ(loc.at("map_loaded"), (tmp / "slam" / "map").string());
   EXPECT_EQ(loc.at("relocalized_at_frame").get<int>(), 0) << loc.dump(2);
+  // The map folder holds no keyframe database: it is rebuilt at load, and relocalisation queries it.
+  EXPECT_NE(r.output.find("keyframe database: not stored with the map, rebuilt from its " +
+                          std::to_string(slam.at("keyframes").get<int>()) + " keyframes"),
+            std::string::npos)
+      << r.output;
+  EXPECT_GE(loc.at("relocalization_cpu_ms").at("attempts").get<int>(), 1) << loc.dump(2);
+  EXPECT_GT(loc.at("relocalization_cpu_ms").at("median").get<double>(), 0.0);
   EXPECT_EQ(loc.at("frames").get<int>(), 35);
   EXPECT_EQ(loc.at("frames_tracked").get<int>(), 35) << loc.dump(2);
   // The map is unchanged: no keyframe or point added or removed, nothing saved over it.

@@ -183,6 +183,49 @@ TEST(Relocalizer, RecoversKittiPoseFromKeyframeDescriptors) {
   EXPECT_FALSE(relocalize(f, {}).success);
 }
 
+// ORB-SLAM's verification: a candidate whose own points give too few inliers is accepted once the
+// guided search has projected its covisible keyframes' points (`neighbours`), never below
+// min_inliers, and of two accepted candidates the one with more inliers wins.
+TEST(Relocalizer, GuidedSearchThroughTheNeighboursAndTheBestCandidateWins) {
+  NERFSLAM_REQUIRE_DATA(dir, "kitti06_first51");
+  const Kitti k = loadKitti(dir);
+  const std::vector<TrackingMapPoint> all = triangulateWithGroundTruth(k.frame(2), k.frame(4), k.gt[2], k.gt[4]);
+  ASSERT_GT(all.size(), 100u);
+  RelocalizationCandidate few;  // half of the points as its own, the others as its neighbours'
+  few.keyframe_id = 3;
+  for (size_t i = 0; i < all.size(); ++i) (i % 2 == 0 ? few.points : few.neighbours).push_back(all[i]);
+  const Frame f = k.frame(5);
+  RelocalizerOptions no_guided;
+  no_guided.guided_search_below = 0;
+  const RelocalizationResult without = relocalize(f, {few}, no_guided);
+  EXPECT_FALSE(without.success) << without.num_inliers;
+  EXPECT_NE(without.reason.find("need 50"), std::string::npos) << without.reason;
+  const RelocalizationResult guided = relocalize(f, {few});
+  ASSERT_TRUE(guided.success) << guided.reason;
+  EXPECT_GE(guided.num_inliers, 50);
+  EXPECT_LT((guided.T_world_cam.translation() - k.gt[5].translation()).norm(), 0.2);
+  EXPECT_LT(rotDeg(guided.T_world_cam, k.gt[5]), 1.0);
+  int from_neighbours = 0;  // matches with point_index past the candidate's own points
+  for (const MapMatch& m : guided.matches) {
+    ASSERT_GE(m.point_index, 0);
+    ASSERT_LT(size_t(m.point_index), few.points.size() + few.neighbours.size());
+    from_neighbours += size_t(m.point_index) >= few.points.size() ? 1 : 0;
+  }
+  EXPECT_GT(from_neighbours, 10);
+  // Two acceptable candidates: the one with more inliers, whatever the order.
+  RelocalizationCandidate half;
+  half.keyframe_id = 4;
+  for (size_t i = 0; i < all.size(); i += 2) half.points.push_back(all[i]);
+  RelocalizationCandidate full;
+  full.keyframe_id = 2;
+  full.points = all;
+  const RelocalizationResult r = relocalize(f, {half, full});
+  ASSERT_TRUE(r.success) << r.reason;
+  EXPECT_EQ(r.keyframe_id, 2u);
+  std::printf("guided search: %d inliers (none without it: %s); of two candidates, %d inliers\n", guided.num_inliers,
+              without.reason.c_str(), r.num_inliers);
+}
+
 TEST(KeyframeDecision, PtamAndCovisibilityCriteria) {
   KeyframePolicyOptions o;
   KeyframeDecisionInput in;

@@ -67,7 +67,7 @@ TEST(RelocalizationPolicy, WeakTrackingIsRetriedBelowTheGoodCountOrAfterACollaps
   EXPECT_FALSE(relocalizeWeakTracking(tracked(TrackingQuality::kWeak, 20), 300, p));
 }
 
-TEST(RelocalizationPolicy, DescriptorVotesOnlyWhereTheCameraMayBeAnywhere) {
+TEST(RelocalizationPolicy, DatabaseCandidatesOnlyWhereTheCameraMayBeAnywhere) {
   EXPECT_FALSE(relocalizeAnywhere(false, false, TrackingQuality::kWeak));
   EXPECT_TRUE(relocalizeAnywhere(false, false, TrackingQuality::kLost));
   EXPECT_TRUE(relocalizeAnywhere(true, false, TrackingQuality::kWeak));

@@ -98,6 +98,10 @@ class LocalMapper {
   // All keyframes and points, the first keyframe fixed.
   // should_stop: checked after every iteration; true ends the BA there (a run stopped twice).
   BaResult globalBundleAdjustment(int iterations, const std::function<bool()>& should_stop = {});
+  // The same global BA, its result not written (the loop closer's background global BA writes it
+  // itself): `solution` gets the free keyframes' poses, every point's position and the outlier
+  // observations. Only reads the map, and records no statistics: safe beside the mapping thread.
+  BaResult solveGlobalBundleAdjustment(int iterations, const std::function<bool()>& should_stop, MapUpdate* solution);
   // Points the system created outside the mapper (initialisation) enter probation too.
   void addRecentPoints(const std::vector<PointId>& ids, KeyframeId created_at);
 
@@ -118,7 +122,7 @@ class LocalMapper {
 
  private:
   BaResult runBa(const std::vector<KeyframeId>& free_kfs, const std::vector<KeyframeId>& fixed_kfs,
-                 const std::vector<PointId>& points, const BundleAdjustmentOptions& ba);
+                 const std::vector<PointId>& points, const BundleAdjustmentOptions& ba, MapUpdate* solution = nullptr);
 
   Map& map_;
   MappingOptions opt_;

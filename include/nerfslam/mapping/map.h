@@ -35,7 +35,6 @@
 #include "nerfslam/mapping/observation_map.h"
 #include "nerfslam/mapping/odometry.h"
 #include "nerfslam/tracking/frame.h"
-#include "nerfslam/tracking/keyframe_vote.h"
 #include "nerfslam/tracking/local_map.h"
 #include "nerfslam/tracking/relocalizer.h"
 #include "nerfslam/tracking/tracker.h"
@@ -169,13 +168,14 @@ class Map {
   // Updates the keyframe poses and point positions of `m` (the lists stay as built). false, and `m`
   // unchanged, when wait = false and a writer holds the lock.
   bool refreshLocalMap(TrackingLocalMap* m, bool wait = true) const;
-  // Relocalisation's inputs, each in one shared-lock section. descriptorVoteTable(): every point with
-  // a descriptor, by id, and the keyframes observing it (tracking/keyframe_vote.h).
-  // relocalizationCandidates(): the keyframes of `order` still in the map, the first `max_candidates`
-  // of them in that order, each with the points it observes that have a descriptor (keypoint order).
-  DescriptorVoteTable descriptorVoteTable() const;
+  // Relocalisation's input, in one shared-lock section (the keyframes come from the keyframe
+  // database, mapping/place_recognition.h). relocalizationCandidates(): the keyframes of `order` still in the map, the
+  // first `max_candidates` of them in that order, each with the points it observes that have a descriptor (keypoint
+  // order) and, as `neighbours`, the other points of its `neighbour_keyframes` best covisible keyframes (for the
+  // relocaliser's guided search; bounded, so the cost does not grow with the map).
   std::vector<RelocalizationCandidate> relocalizationCandidates(const std::vector<KeyframeId>& order,
-                                                                size_t max_candidates) const;
+                                                                size_t max_candidates,
+                                                                int neighbour_keyframes = 10) const;
 
   // Lock-wait statistics of the calling thread, over all Map instances, since the thread started or
   // the last resetThreadLockWait().

@@ -45,6 +45,8 @@ void addRunOutput(nlohmann::json& report, const std::string& name);
 // shows the scene, else the sparse points, keyframes and trajectory; and trajectory.png, a top view
 // with axes: with `ground_truth` and `gt_alignment` the aligned estimate on it in metres, titled with
 // the report's ate_rmse_m, ate_percent_of_path and path_length_m, else the estimate in map units.
+// After a loop closure (with ground truth) the plot also shows the poses as tracked, before the
+// corrections (aligned on their own), and the report gets ate_percent_of_path_as_tracked.
 void writeRunPreviews(const SlamSystem& slam, const Trajectory& trajectory, const Trajectory& ground_truth,
                       const std::optional<Sim3>& gt_alignment, const PreviewCloud& dense, nlohmann::json& report,
                       const std::filesystem::path& out);

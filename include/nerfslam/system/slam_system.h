@@ -9,8 +9,8 @@
 //
 // The system wires the threads; what tracking decides lives in tracking/ (tracking_policy.h: weak
 // tracking, relocalisation candidates, the reference keyframe, the keyframe decision's geometry;
-// keyframe_vote.h: the vote of a lost camera). A new map is written by the tracking thread with the
-// mapping thread held (MappingThread::hold); its bundle adjustment and the frames between the two
+// mapping/place_recognition.h: the keyframe database a lost camera queries). A new map is written by the tracking
+// thread with the mapping thread held (MappingThread::hold); its bundle adjustment and the frames between the two
 // initialisation frames then run on the mapping thread, and the next trackFrame() (or finish())
 // takes the result (pollInitialization).
 #include <atomic>
@@ -53,7 +53,7 @@ struct SystemOptions {
   LoopClosingOptions loop_closing;
   int local_map_keyframes = 10;          // covisible keyframes whose points tracking matches against
   int keyframe_queue = 3;                // mapping input queue (keyframes beyond it are dropped)
-  int relocalization_candidates = 5;     // most recent keyframes tried when lost
+  int relocalization_candidates = 5;     // keyframe-database candidates (and most recent keyframes) tried when lost
   bool relocalize_when_weak = true;      // also relocalise frames tracked with fewer than min_inliers_good inliers
   double relocalize_inlier_drop = 0.25;  // ... or with fewer than this fraction of the previous frame's inliers
   int min_initial_points = 50;           // initial points observed in both keyframes
@@ -74,7 +74,9 @@ struct SystemOptions {
       check::range(1, 1000));
     v("keyframe_queue", keyframe_queue, "Keyframes queued for mapping before new ones are dropped",
       check::range(1, 1000));
-    v("relocalization_candidates", relocalization_candidates, "Recent keyframes tried by relocalisation",
+    v("relocalization_candidates", relocalization_candidates,
+      "Keyframes relocalisation tries: the keyframe database's best candidates where the camera may be anywhere "
+      "(lost, or a loaded map), and as many of the most recent keyframes",
       check::range(1, 1000));
     v("relocalize_when_weak", relocalize_when_weak,
       "Also relocalise frames tracked with fewer than tracking.tracker.min_inliers_good inliers; the pose with "
@@ -122,7 +124,8 @@ struct FrameRecord {
   // tracking against the local map (matching and pose optimisation), relocalisation attempts, and
   // the rest (keyframe decision, statistics for point culling).
   double extract_cpu_ms = 0, local_map_cpu_ms = 0, track_cpu_ms = 0, relocalize_cpu_ms = 0;
-  FrameTimings extract_stages;  // the extraction's own stages (pyramid, FAST, descriptors)
+  bool relocalization_attempted = false;  // relocalize_cpu_ms is one attempt's
+  FrameTimings extract_stages;            // the extraction's own stages (pyramid, FAST, descriptors)
   // Before a map exists: the initialiser's KLT tracking, and its model fits with the reconstruction.
   double init_klt_cpu_ms = 0, init_models_cpu_ms = 0;
   std::string message;
@@ -168,6 +171,8 @@ class SlamSystem {
   }
   // The loop closing thread (nullptr when options.loop_closing.enabled is false).
   const LoopClosing* loopClosing() const { return loop_.get(); }
+  // The keyframe database relocalisation queries (shared with loop closing; always present).
+  const PlaceRecognition& places() const { return *places_; }
   // Loop corrections the tracking thread has applied to its own state (pose, motion model, frames).
   uint64_t loopCorrectionsApplied() const { return loop_corrections_seen_; }
   const Map& map() const { return *map_; }
@@ -258,7 +263,8 @@ class SlamSystem {
   SystemOptions opt_;
   std::unique_ptr<Map> map_;
   std::unique_ptr<MappingThread> mapping_;
-  std::unique_ptr<LoopClosing> loop_;  // after mapping_: stopped and destroyed first
+  std::shared_ptr<PlaceRecognition> places_;  // the keyframe database (loop closing and relocalisation)
+  std::unique_ptr<LoopClosing> loop_;         // after mapping_: stopped and destroyed first
   uint64_t loop_corrections_seen_ = 0;
   uint64_t pose_map_version_ = 0;      // Map::version() of the local map the tracker's pose was last tracked against
   std::unique_ptr<NerfMapping> nerf_;  // after mapping_: unsubscribes from its bus first

@@ -31,7 +31,7 @@ struct WeakTrackingPolicy {
 bool relocalizeWeakTracking(const TrackingResult& tracked, int last_inliers, const WeakTrackingPolicy& policy);
 
 // The camera may be anywhere in the map (a loaded map, localisation only, or tracking lost, not just
-// weak): relocalisation then also tries the keyframes voted by descriptor (keyframe_vote.h).
+// weak): relocalisation then also tries the keyframe database's candidates (mapping/place_recognition.h).
 bool relocalizeAnywhere(bool loaded_map, bool localization_only, TrackingQuality quality);
 
 // The keyframes relocalisation tries, in order, and how many.
@@ -41,7 +41,8 @@ struct RelocalizationChoice {
   // The first this many of them that are still in the map: every voted one and `recent` more.
   size_t max_candidates = 0;
 };
-// `keyframe_ids`: the map's keyframes (any order); `voted`: keyframesByDescriptorVotes (or empty).
+// `keyframe_ids`: the map's keyframes (any order); `voted`: the keyframe database's candidates, best
+// first (PlaceRecognition::relocalizationCandidates, or empty).
 RelocalizationChoice chooseRelocalizationKeyframes(const std::vector<KeyframeId>& keyframe_ids,
                                                    const std::vector<KeyframeId>& voted, int recent);
 
