@@ -177,18 +177,35 @@ std::optional<LoopCandidate> firstLoop(LoopClosing& lc, const Map& map) {
   return std::nullopt;
 }
 
+// Two laps of the scene, the second drifted by secondLapDrift(), and a loop closing over the map.
+struct TwoLaps {
+  Scene s = makeScene();
+  Map map{s.camera};
+  std::vector<KeyframeId> lap2;
+  std::unique_ptr<LoopClosing> lc;
+  TwoLaps() {
+    addLap(map, s, Sim3(), 0);
+    lap2 = addLap(map, s, secondLapDrift(), 100);
+    LoopClosingOptions o;
+    o.min_keyframes = 2;
+    o.min_keyframe_gap = 0;
+    lc = std::make_unique<LoopClosing>(map, nullptr,
+                                       std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
+  }
+  // The first loop found, corrected by the essential graph.
+  bool closeFirstLoop() {
+    const auto loop = firstLoop(*lc, map);
+    return loop.has_value() && lc->correct(*loop);
+  }
+};
+
 TEST(LoopClosingMap, GlobalBaAfterTheClosureRemovesTheDriftTheGraphKept) {
-  const Scene s = makeScene();
-  Map map(s.camera);
-  addLap(map, s, Sim3(), 0);
-  const auto lap2 = addLap(map, s, secondLapDrift(), 100);
-  LoopClosingOptions o;
-  o.min_keyframes = 2;
-  o.min_keyframe_gap = 0;
-  LoopClosing lc(map, nullptr, std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
-  const auto loop = firstLoop(lc, map);
-  ASSERT_TRUE(loop.has_value());
-  ASSERT_TRUE(lc.correct(*loop));
+  TwoLaps t;
+  ASSERT_TRUE(t.closeFirstLoop());
+  const Scene& s = t.s;
+  Map& map = t.map;
+  const auto& lap2 = t.lap2;
+  LoopClosing& lc = *t.lc;
   const double after_graph = maxCentreError(map, s, lap2);
   GlobalBaRecord g;
   ASSERT_TRUE(lc.runGlobalBa(&g));
@@ -210,17 +227,11 @@ TEST(LoopClosingMap, GlobalBaAfterTheClosureRemovesTheDriftTheGraphKept) {
 // to its parent (the adjusted keyframe it shares the most points with), a point its position in its
 // reference keyframe's camera.
 TEST(LoopClosingMap, GlobalBaMovesWhatWasMadeMeanwhileWithItsParent) {
-  const Scene s = makeScene();
-  Map map(s.camera);
-  addLap(map, s, Sim3(), 0);
-  const auto lap2 = addLap(map, s, secondLapDrift(), 100);
-  LoopClosingOptions o;
-  o.min_keyframes = 2;
-  o.min_keyframe_gap = 0;
-  LoopClosing lc(map, nullptr, std::make_shared<const Vocabulary>(loadVocabulary(vocabularyPath(""))), o);
-  const auto loop = firstLoop(lc, map);
-  ASSERT_TRUE(loop.has_value());
-  ASSERT_TRUE(lc.correct(*loop));
+  TwoLaps t;
+  ASSERT_TRUE(t.closeFirstLoop());
+  Map& map = t.map;
+  const auto& lap2 = t.lap2;
+  LoopClosing& lc = *t.lc;
   LocalMapper mapper(map, MappingOptions{});
   MapUpdate solution;
   mapper.solveGlobalBundleAdjustment(10, {}, &solution);
