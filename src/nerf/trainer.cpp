@@ -520,10 +520,9 @@ bool Trainer::applyGradients(int64_t rays, StepStats* stats) {
         g[i] = 0.f;
       }
     }
-    if (step_ >= opt_.background_start_steps)
-      model_.background->step(sum, float(learningRate()), model_.field->config().adam, scale);
-    else
-      std::fill(sum, sum + n, 0.f);
+    // Before background_start_steps no ray uses it (marchChunk): its gradient is zero, and step()
+    // leaves texels with a zero gradient as they are.
+    model_.background->step(sum, float(learningRate()), model_.field->config().adam, scale);
   }
   stepAppearance();
   stats->times.optimizer = since(t0);
