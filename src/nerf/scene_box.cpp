@@ -28,6 +28,17 @@ Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vecto
   return b;
 }
 
+std::vector<Eigen::Vector3d> camerasInScene(const std::vector<Eigen::Vector3d>& points,
+                                            const std::vector<Eigen::Vector3d>& cameras) {
+  if (points.empty()) return cameras;
+  const Bounds b = robustBounds(points, {});
+  const double reach = kCameraReach * (b.hi - b.lo).maxCoeff();
+  std::vector<Eigen::Vector3d> in;
+  for (const auto& c : cameras)
+    if ((b.lo - c).cwiseMax(c - b.hi).maxCoeff() <= reach) in.push_back(c);
+  return in;
+}
+
 SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, double min_half) {
   SceneTransform s;
   const Eigen::Vector3d centre = 0.5 * (b.lo + b.hi);
@@ -40,8 +51,13 @@ SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, 
 
 SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras,
                            double margin, double aabb_scale) {
-  const double baseline = cameras.empty() ? 0.0 : (cameras.front() - cameras.back()).norm();
-  return cubeTransform(robustBounds(points, cameras), margin, aabb_scale, std::max(baseline, 1e-3));
+  // A map smaller than the step between its first two views is not yet a scene to fit to.
+  const Bounds pts = robustBounds(points, {});
+  const bool tiny =
+      points.empty() || (cameras.size() >= 2 && (pts.hi - pts.lo).maxCoeff() < (cameras[0] - cameras[1]).norm());
+  const std::vector<Eigen::Vector3d> in = tiny ? cameras : camerasInScene(points, cameras);
+  const double baseline = in.empty() ? 0.0 : (in.front() - in.back()).norm();
+  return cubeTransform(robustBounds(points, in), margin, aabb_scale, std::max(baseline, 1e-3));
 }
 
 bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
@@ -50,13 +66,13 @@ bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vect
   size_t outside = 0;
   for (const auto& p : points) outside += !insideUnitCube(scene.toNerf(p));
   bool camera_out = false;
-  for (const auto& c : cameras) camera_out |= !insideUnitCube(scene.toNerf(c));
+  for (const auto& c : camerasInScene(points, cameras)) camera_out |= !insideUnitCube(scene.toNerf(c));
   return camera_out || double(outside) > outside_fraction * double(points.size());
 }
 
 SceneTransform refitSceneBox(const SceneTransform& old, const std::vector<Eigen::Vector3d>& points,
                              const std::vector<Eigen::Vector3d>& cameras, double margin, double aabb_scale) {
-  Bounds b = robustBounds(points, cameras);
+  Bounds b = robustBounds(points, camerasInScene(points, cameras));
   b.lo = b.lo.cwiseMin(old.toWorld(Eigen::Vector3d::Zero()));
   b.hi = b.hi.cwiseMax(old.toWorld(Eigen::Vector3d::Ones()));
   const double old_half = 0.5 / old.scale;

@@ -66,11 +66,37 @@ TEST(SceneBox, FirstFitHoldsTheMapAndIsAtLeastTheCameraBaseline) {
   EXPECT_LE(f.scale, 0.5 / 4.0 + 1e-12);  // half side >= |first - last camera| = 4
 }
 
+// An object photographed from a ring of cameras three times its size away (the Middlebury temple
+// ring): the box is the object's, not the ring's; cameras in or near the map are held.
+TEST(SceneBox, ObjectCaptureBoxHoldsTheObjectNotTheCameraRing) {
+  const std::vector<Eigen::Vector3d> pts = gridPoints();  // [0, 1]^3
+  std::vector<Eigen::Vector3d> ring;
+  for (int k = 0; k < 36; ++k) {
+    const double a = 2.0 * M_PI * k / 36.0;
+    ring.emplace_back(0.5 + 3.5 * std::cos(a), 0.5, 0.5 + 3.5 * std::sin(a));
+  }
+  EXPECT_TRUE(camerasInScene(pts, ring).empty());
+  const SceneTransform s = fitSceneBox(pts, ring, 1.2, 2.0);
+  EXPECT_NEAR(s.scale, 0.5 / 0.6, 0.05);  // the object's cube, half side 1.2 * 0.5 (robust bounds)
+  for (const auto& c : ring) EXPECT_FALSE(insideUnitCube(s.toNerf(c)));
+  EXPECT_FALSE(sceneBoxOutgrown(s, pts, ring, 0.05));
+  const SceneTransform r = refitSceneBox(s, pts, ring, 1.2, 2.0);  // grows 1.5x, not to the ring
+  EXPECT_NEAR(r.scale, s.scale / 1.5, 1e-9);
+  // A camera inside the map and one just outside it (within one extent) are in the scene.
+  const std::vector<Eigen::Vector3d> near = {Eigen::Vector3d(0.5, 0.5, 0.5), Eigen::Vector3d(0.5, 0.5, 1.9)};
+  EXPECT_EQ(camerasInScene(pts, near).size(), 2u);
+  EXPECT_TRUE(insideUnitCube(fitSceneBox(pts, near, 1.2, 2.0).toNerf(near[1])));
+  // Without points every camera is.
+  EXPECT_EQ(camerasInScene({}, ring).size(), ring.size());
+}
+
 TEST(SceneBox, OutgrownByACameraOrByMoreThanTheFractionOfPoints) {
   const std::vector<Eigen::Vector3d> pts = gridPoints();
   const SceneTransform s = fitSceneBox(pts, {Eigen::Vector3d(0.5, 0.5, 0.5), Eigen::Vector3d(0.5, 0.6, 0.5)}, 1.2, 2.0);
   EXPECT_FALSE(sceneBoxOutgrown(s, pts, {Eigen::Vector3d(0.5, 0.5, 0.5)}, 0.05));
-  EXPECT_TRUE(sceneBoxOutgrown(s, pts, {Eigen::Vector3d(0.5, 0.5, 5)}, 0.05));
+  EXPECT_TRUE(sceneBoxOutgrown(s, pts, {Eigen::Vector3d(0.5, 0.5, 1.8)}, 0.05));
+  // A camera 4 extents away looks at the map from outside the scene: not a reason to grow.
+  EXPECT_FALSE(sceneBoxOutgrown(s, pts, {Eigen::Vector3d(0.5, 0.5, 5)}, 0.05));
   std::vector<Eigen::Vector3d> more = pts;
   for (int i = 0; i < 100; ++i) more.emplace_back(10 + i, 0, 0);  // 7 % of the points outside
   EXPECT_TRUE(sceneBoxOutgrown(s, more, {}, 0.05));

@@ -4,9 +4,13 @@
 // refitSceneBox grows it around the map and the old box.
 //
 // The box is the robust extent of the points (per axis the 2nd..98th percentile) widened to hold
-// every camera centre, made a cube of side (largest extent) * margin around its centre; the scene
-// transform maps that cube onto the unit cube, and the NeRF's box (aabb_scale times the unit cube,
-// with its cascades) extends beyond it.
+// the camera centres that are in the scene (camerasInScene), made a cube of side (largest extent) *
+// margin around its centre; the scene transform maps that cube onto the unit cube, and the NeRF's
+// box (aabb_scale times the unit cube, with its cascades) extends beyond it. Cameras inside a room
+// or on a street are held, so the space around them is mapped; cameras that look at an object from
+// outside (a ring of photos around it) are not: a box holding them left the temple of the
+// Middlebury ring 20 of the occupancy grid's 128 cells across. Rays from cameras outside the box
+// start where they enter it.
 #include <vector>
 
 #include <Eigen/Core>
@@ -23,18 +27,29 @@ struct Bounds {
 // points or cameras the bounds are empty (lo = +inf, hi = -inf).
 Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras);
 
+// A camera farther than this many times the points' largest robust extent outside their robust
+// bounds looks at the scene from outside (the temple ring's cameras: 2.4-3.4 extents; cameras in a
+// room or on a street are inside the points' bounds or near them).
+constexpr double kCameraReach = 1.0;
+
+// The cameras within kCameraReach of the points' robust bounds (all of them without points).
+std::vector<Eigen::Vector3d> camerasInScene(const std::vector<Eigen::Vector3d>& points,
+                                            const std::vector<Eigen::Vector3d>& cameras);
+
 // The transform mapping the cube of half-side max(margin * (largest extent of `b`) / 2, min_half)
 // centred on `b` onto the unit cube, with the given aabb_scale.
 SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, double min_half);
 
-// The first box of a map: the robust bounds of points and cameras (camera centres in capture
-// order), with a half-side of at least the distance between the first and the last camera (1e-3
-// at least), so a map that is still nearly flat gets a box of the scale of its motion.
+// The first box of a map: the robust bounds of the points and the cameras in the scene (camera
+// centres in capture order), with a half-side of at least the distance between the first and the
+// last of those cameras (1e-3 at least), so a map that is still nearly flat gets a box of the scale
+// of its motion. While the points' extent is below the distance between the first two cameras (a
+// map smaller than the step that made it), every camera is held.
 SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras,
                            double margin, double aabb_scale);
 
-// True when the map has points and any camera centre, or more than outside_fraction of the points,
-// lies outside the unit cube of `scene` (false without points: nothing to fit a new box to).
+// True when the map has points and any camera centre in the scene (camerasInScene), or more than outside_fraction of
+// the points, lies outside the unit cube of `scene` (false without points: nothing to fit a new box to).
 bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
                       const std::vector<Eigen::Vector3d>& cameras, double outside_fraction);
 
