@@ -221,11 +221,48 @@ std::pair<double, double> quantileRange(std::vector<double> v, double q) {
 
 }  // namespace
 
+// Photos around an object: every camera looks at the points' centre (within 20 degrees), from
+// directions that differ by more than 60 degrees (an arc of a ring can be as open as a drive). Then
+// *up is the normal of the cameras' plane, on the side the cameras are (photographers look down onto
+// an object; in the plane of its centre, the side of `up`): the cameras' own up axes say nothing when
+// the photos were taken rotated, as the Middlebury ring's are.
+static bool photosAround(const std::vector<Eigen::Vector3f>& points, const std::vector<SE3>& cameras,
+                         const Vector3d& up, Vector3d* around_up) {
+  if (cameras.size() < 3) return false;
+  Vector3d centre;
+  for (int k = 0; k < 3; ++k) {
+    std::vector<double> v;
+    for (const auto& p : points) v.push_back(double(p[k]));
+    const auto [lo, hi] = quantileRange(v, 0.02);
+    centre[k] = 0.5 * (lo + hi);
+  }
+  Vector3d mean_to = Vector3d::Zero(), mean_c = Vector3d::Zero();
+  for (const auto& T : cameras) {
+    const Vector3d to = centre - T.translation();
+    if (to.norm() < 1e-12 || T.rotationMatrix().col(2).dot(to.normalized()) < std::cos(20.0 * M_PI / 180.0))
+      return false;
+    mean_to += to.normalized() / double(cameras.size());
+    mean_c += T.translation() / double(cameras.size());
+  }
+  if (mean_to.norm() >= 0.87) return false;
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const auto& T : cameras) cov += (T.translation() - mean_c) * (T.translation() - mean_c).transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+  Vector3d n = es.eigenvectors().col(0);  // smallest eigenvalue: the normal of the cameras' plane
+  const double above = (mean_c - centre).dot(n);
+  if (std::abs(above) > 1e-3 * (mean_c - centre).norm() ? above < 0 : n.dot(up) < 0) n = -n;
+  *around_up = n.normalized();
+  return true;
+}
+
 Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std::vector<SE3>& cameras,
                            const PreviewOptions& opts) {
   if (points.empty() || cameras.empty()) fail("overview viewpoint: needs points and cameras");
   if (!opts.up.allFinite() || opts.up.norm() < 1e-9) fail("preview up direction must be finite and non-zero");
-  const Vector3d up = opts.up.normalized();
+  Overview ov;
+  Vector3d up = opts.up.normalized();
+  const bool around = photosAround(points, cameras, up, &up);
+  ov.up = up;
   // A horizontal basis (a, b) perpendicular to up; the main horizontal direction of the camera path.
   Vector3d a = up.cross(std::abs(up.x()) < 0.9 ? Vector3d::UnitX() : Vector3d::UnitY()).normalized();
   Vector3d b = up.cross(a);
@@ -261,11 +298,10 @@ Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std
   const auto [ulo, uhi] = quantileRange(pu, 0.02);
   const double scene = std::max(ahi - alo, bhi - blo);
   const double half_fov = 0.5 * opts.fov_deg * M_PI / 180.0;
-  Overview ov;
   // An open path, long against the scene, or shorter but with the cameras looking where they go.
   const bool open = (end - start).dot(dir) > 0.5 * path;
   const bool looking_ahead = mean_fwd.dot(dir) > 0.7;
-  ov.traversal = open && (path > 0.4 * scene || (looking_ahead && path > 0.2 * scene));
+  ov.traversal = !around && open && (path > 0.4 * scene || (looking_ahead && path > 0.2 * scene));
   if (ov.traversal) {
     // Looking 30 degrees down at a point ahead of the start, from behind and above it.
     ov.target = start + 0.45 * path * dir;
@@ -282,7 +318,11 @@ Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std
     top = *ov.max_height;
   }
   const Vector3d centre = 0.5 * (alo + ahi) * a + 0.5 * (blo + bhi) * b + 0.5 * (ulo + top) * up;
-  const double radius = std::max(0.05, 0.5 * Vector3d(ahi - alo, bhi - blo, top - ulo).norm());
+  double radius = std::max(0.05, 0.5 * Vector3d(ahi - alo, bhi - blo, top - ulo).norm());
+  // An object seen from around it: the cameras are in the picture too (the trajectory would otherwise
+  // be cut away, the legend naming a line nobody can see).
+  if (!inside)
+    for (const auto& T : cameras) radius = std::max(radius, (T.translation() - centre).norm());
   // From behind the cameras' mean viewing direction, else from the side the cameras are on.
   Vector3d side = -(mean_fwd - mean_fwd.dot(up) * up);
   if (side.norm() < 0.3) side = mean_c - centre - (mean_c - centre).dot(up) * up;
@@ -290,8 +330,10 @@ Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std
   side.normalize();
   const double elevation = inside ? 0.52 : 0.61;  // 30 degrees into a room, 35 onto an object
   ov.target = centre;
-  // The bounding sphere fits the view with room to spare: a little closer.
-  ov.eye = centre + (std::cos(elevation) * side + std::sin(elevation) * up) * (radius / std::sin(half_fov) * 0.85);
+  // The bounding sphere fits the view with room to spare: a little closer; with the cameras, a little
+  // farther, so that none of them is at the edge.
+  const double fit = inside ? 0.85 : 1.05;
+  ov.eye = centre + (std::cos(elevation) * side + std::sin(elevation) * up) * (radius / std::sin(half_fov) * fit);
   return ov;
 }
 

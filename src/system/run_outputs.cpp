@@ -176,6 +176,7 @@ cv::Mat mapPreview(const SlamSystem& slam, const Trajectory& traj, const Preview
     const Overview ov = overviewViewpoint(dense.points, poses, po);
     po.eye = ov.eye;
     po.target = ov.target;
+    po.up = ov.up;
     po.max_height = ov.max_height;
     po.line_width = 3;
     po.point_size = 3;

@@ -290,6 +290,51 @@ TEST(Preview, OverviewOfARoomLooksInFromAboveWithoutTheCeiling) {
   EXPECT_LT(countColor(outside, {0, 0, 220}), img.total() / 50);
 }
 
+TEST(Preview, OverviewOfAnObjectShowsItAndTheCamerasAroundIt) {
+  // A 0.3 m object (z up) photographed from half a ring of cameras at 1 m, 0.4 m above it.
+  PreviewCloud object;
+  for (float x = -0.15f; x <= 0.15f; x += 0.01f)
+    for (float y = -0.15f; y <= 0.15f; y += 0.01f)
+      for (float z : {0.f, 0.3f}) object.points.emplace_back(x, y, z);
+  std::vector<SE3> cams;
+  for (int i = 0; i < 19; ++i) {
+    const double a = M_PI * i / 18.0;
+    cams.push_back(lookAt({std::cos(a), std::sin(a), 0.55}, {0, 0, 0.15}));
+  }
+  PreviewOptions o;
+  o.width = 320;
+  o.height = 240;
+  o.legend = false;
+  const Overview ov = overviewViewpoint(object.points, cams, o);
+  EXPECT_FALSE(ov.traversal);
+  EXPECT_FALSE(ov.max_height.has_value());
+  EXPECT_LT((ov.target - Eigen::Vector3d(0, 0, 0.15)).norm(), 0.05) << ov.target.transpose();
+  EXPECT_GT(ov.up.z(), 0.99) << ov.up.transpose();
+  // Photos taken rotated (the Middlebury ring's): an up from the cameras' axes would be horizontal;
+  // the overview still looks down onto the object from above the ring.
+  PreviewOptions rolled = o;
+  rolled.up = Eigen::Vector3d(1, 0, 0);
+  const Overview ovr = overviewViewpoint(object.points, cams, rolled);
+  EXPECT_GT(ovr.up.z(), 0.99) << ovr.up.transpose();
+  EXPECT_GT(ovr.eye.z(), 0.55) << "above the cameras";
+  // Every camera and the object are drawn: within the field of view from the eye.
+  const Eigen::Vector3d axis = (ov.target - ov.eye).normalized();
+  const double half_fov = 0.5 * o.fov_deg * M_PI / 180.0;
+  for (const auto& T : cams) {
+    const Eigen::Vector3d d = (T.translation() - ov.eye).normalized();
+    EXPECT_LT(std::acos(std::min(1.0, d.dot(axis))), half_fov) << T.translation().transpose();
+  }
+  PreviewScene s;
+  s.clouds.push_back(object);
+  s.trajectories.push_back({cams, {0, 0, 255}, "cameras"});
+  o.eye = ov.eye;
+  o.target = ov.target;
+  o.up = ov.up;
+  const cv::Mat img = renderPreview(s, o);
+  if (const char* keep = std::getenv("NERFSLAM_KEEP_PREVIEW")) cv::imwrite(keep, img);
+  EXPECT_GT(countColor(img, {0, 0, 255}), 200) << "trajectory pixels";
+}
+
 TEST(Preview, OverviewOfADriveLooksAheadFromBehindTheStart) {
   // A street along +y (z up): 80 m of road and house fronts either side, a car driving 40 m along it
   // from y = 0.

@@ -69,14 +69,21 @@ void autoView(const PreviewScene& scene, const PreviewOptions& opts, Eigen::Vect
 // A viewpoint from which a reconstructed surface (`points`) seen by cameras at `cameras` (T_world_cam,
 // in order) reads at a glance, with opts.up as up and opts.fov_deg:
 // - a traversal (an open camera path long against the scene, or a fifth of it with the cameras looking
-//   along it, e.g. a drive): from behind and above the path's start, looking along its main direction;
+//   along it, e.g. a drive; not cameras that all look at the scene's centre from directions more than
+//   60 degrees apart, photos around an object): from behind and above the path's start, looking along
+//   its main direction;
 // - a compact scene (a room, an object): from outside the points' bounds and above them (30 degrees
 //   into a room, 35 onto an object), looking at their centre from behind the cameras' mean viewing
 //   direction; when the cameras are inside the bounds (a room), `max_height` is set a quarter of the
-//   room's height above the highest camera, so a ceiling does not hide the room.
+//   room's height above the highest camera, so a ceiling does not hide the room; when they are
+//   outside (photos around an object), the view holds them too.
 // Throws Error when there are no points or no cameras.
 struct Overview {
   Eigen::Vector3d eye, target;
+  // The up direction it was chosen with (draw with it): opts.up, or for photos around an object the
+  // normal of the cameras' plane on their side (the cameras' own axes mislead when the photos were
+  // taken rotated).
+  Eigen::Vector3d up;
   std::optional<double> max_height;
   bool traversal = false;
 };
