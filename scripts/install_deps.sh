@@ -19,7 +19,7 @@ BUILD_PKGS=(
   libosmesa6-dev libhwy-dev liboctomap-dev
   libcli11-dev libyaml-cpp-dev libspdlog-dev libfmt-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
-  clang libclang-rt-14-dev
+  clang libclang-rt-14-dev python3-yaml
 )
 ROS_PKGS=(
   catkin ros-core-dev libroscpp-dev libtf2-ros-dev libtf2-geometry-msgs-dev libimage-transport-dev
