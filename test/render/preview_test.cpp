@@ -253,16 +253,22 @@ int countColor(const cv::Mat& img, const cv::Vec3b& c) {
   return cv::countNonZero(mask);
 }
 
+// 320x240 without a legend: the overview tests' pictures.
+PreviewOptions smallOverviewOptions() {
+  PreviewOptions o;
+  o.width = 320;
+  o.height = 240;
+  o.legend = false;
+  return o;
+}
+
 TEST(Preview, OverviewOfARoomLooksInFromAboveWithoutTheCeiling) {
   const PreviewCloud room = boxRoom();
   // A handheld walk at 1.5 m along the far wall, looking at it (+x).
   std::vector<SE3> cams;
   for (int i = 0; i < 20; ++i)
     cams.push_back(lookAt({0.2 * std::sin(i * 0.3), -1.0 + 0.1 * i, 1.5}, {3.0, 0.3 * std::cos(i * 0.2), 1.2}));
-  PreviewOptions o;
-  o.width = 320;
-  o.height = 240;
-  o.legend = false;
+  PreviewOptions o = smallOverviewOptions();
   const Overview ov = overviewViewpoint(room.points, cams, o);
   EXPECT_FALSE(ov.traversal);
   ASSERT_TRUE(ov.max_height.has_value());
@@ -301,10 +307,7 @@ TEST(Preview, OverviewOfAnObjectShowsItAndTheCamerasAroundIt) {
     const double a = M_PI * i / 18.0;
     cams.push_back(lookAt({std::cos(a), std::sin(a), 0.55}, {0, 0, 0.15}));
   }
-  PreviewOptions o;
-  o.width = 320;
-  o.height = 240;
-  o.legend = false;
+  PreviewOptions o = smallOverviewOptions();
   const Overview ov = overviewViewpoint(object.points, cams, o);
   EXPECT_FALSE(ov.traversal);
   EXPECT_FALSE(ov.max_height.has_value());
