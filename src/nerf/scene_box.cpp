@@ -5,22 +5,28 @@
 
 namespace nerfslam::nerf {
 
-Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras) {
+namespace {
+
+// Per axis the 2nd..98th percentile of the points (empty bounds without points).
+Bounds pointBounds(const std::vector<Eigen::Vector3d>& points) {
   Bounds b;
   b.lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
   b.hi = -b.lo;
-  if (!points.empty()) {
-    for (int a = 0; a < 3; ++a) {
-      std::vector<double> v;
-      v.reserve(points.size());
-      for (const auto& p : points) v.push_back(p[a]);
-      const size_t k0 = size_t(0.02 * double(v.size() - 1)), k1 = size_t(0.98 * double(v.size() - 1));
-      std::nth_element(v.begin(), v.begin() + long(k0), v.end());
-      b.lo[a] = v[k0];
-      std::nth_element(v.begin(), v.begin() + long(k1), v.end());
-      b.hi[a] = v[k1];
-    }
+  if (points.empty()) return b;
+  for (int a = 0; a < 3; ++a) {
+    std::vector<double> v;
+    v.reserve(points.size());
+    for (const auto& p : points) v.push_back(p[a]);
+    const size_t k0 = size_t(0.02 * double(v.size() - 1)), k1 = size_t(0.98 * double(v.size() - 1));
+    std::nth_element(v.begin(), v.begin() + long(k0), v.end());
+    b.lo[a] = v[k0];
+    std::nth_element(v.begin(), v.begin() + long(k1), v.end());
+    b.hi[a] = v[k1];
   }
+  return b;
+}
+
+Bounds widened(Bounds b, const std::vector<Eigen::Vector3d>& cameras) {
   for (const auto& c : cameras) {
     b.lo = b.lo.cwiseMin(c);
     b.hi = b.hi.cwiseMax(c);
@@ -28,15 +34,25 @@ Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vecto
   return b;
 }
 
-std::vector<Eigen::Vector3d> camerasInScene(const std::vector<Eigen::Vector3d>& points,
-                                            const std::vector<Eigen::Vector3d>& cameras) {
-  if (points.empty()) return cameras;
-  const Bounds b = robustBounds(points, {});
-  const double reach = kCameraReach * (b.hi - b.lo).maxCoeff();
+// camerasInScene with the points' bounds already computed (`pts` empty: every camera).
+std::vector<Eigen::Vector3d> inScene(const Bounds& pts, const std::vector<Eigen::Vector3d>& cameras) {
+  if ((pts.lo.array() > pts.hi.array()).any()) return cameras;
+  const double reach = kCameraReach * (pts.hi - pts.lo).maxCoeff();
   std::vector<Eigen::Vector3d> in;
   for (const auto& c : cameras)
-    if ((b.lo - c).cwiseMax(c - b.hi).maxCoeff() <= reach) in.push_back(c);
+    if ((pts.lo - c).cwiseMax(c - pts.hi).maxCoeff() <= reach) in.push_back(c);
   return in;
+}
+
+}  // namespace
+
+Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras) {
+  return widened(pointBounds(points), cameras);
+}
+
+std::vector<Eigen::Vector3d> camerasInScene(const std::vector<Eigen::Vector3d>& points,
+                                            const std::vector<Eigen::Vector3d>& cameras) {
+  return inScene(pointBounds(points), cameras);
 }
 
 SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, double min_half) {
@@ -52,12 +68,11 @@ SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, 
 SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras,
                            double margin, double aabb_scale) {
   // A map smaller than the step between its first two views is not yet a scene to fit to.
-  const Bounds pts = robustBounds(points, {});
-  const bool tiny =
-      points.empty() || (cameras.size() >= 2 && (pts.hi - pts.lo).maxCoeff() < (cameras[0] - cameras[1]).norm());
-  const std::vector<Eigen::Vector3d> in = tiny ? cameras : camerasInScene(points, cameras);
+  const Bounds pts = pointBounds(points);
+  const bool tiny = cameras.size() >= 2 && (pts.hi - pts.lo).maxCoeff() < (cameras[0] - cameras[1]).norm();
+  const std::vector<Eigen::Vector3d> in = tiny ? cameras : inScene(pts, cameras);
   const double baseline = in.empty() ? 0.0 : (in.front() - in.back()).norm();
-  return cubeTransform(robustBounds(points, in), margin, aabb_scale, std::max(baseline, 1e-3));
+  return cubeTransform(widened(pts, in), margin, aabb_scale, std::max(baseline, 1e-3));
 }
 
 bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
@@ -72,7 +87,8 @@ bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vect
 
 SceneTransform refitSceneBox(const SceneTransform& old, const std::vector<Eigen::Vector3d>& points,
                              const std::vector<Eigen::Vector3d>& cameras, double margin, double aabb_scale) {
-  Bounds b = robustBounds(points, camerasInScene(points, cameras));
+  const Bounds pts = pointBounds(points);
+  Bounds b = widened(pts, inScene(pts, cameras));
   b.lo = b.lo.cwiseMin(old.toWorld(Eigen::Vector3d::Zero()));
   b.hi = b.hi.cwiseMax(old.toWorld(Eigen::Vector3d::Ones()));
   const double old_half = 0.5 / old.scale;

@@ -219,15 +219,13 @@ std::pair<double, double> quantileRange(std::vector<double> v, double q) {
   return {lo, v[b]};
 }
 
-}  // namespace
-
 // Photos around an object: every camera looks at the points' centre (within 20 degrees), from
 // directions that differ by more than 60 degrees (an arc of a ring can be as open as a drive). Then
 // *up is the normal of the cameras' plane, on the side the cameras are (photographers look down onto
 // an object; in the plane of its centre, the side of `up`): the cameras' own up axes say nothing when
 // the photos were taken rotated, as the Middlebury ring's are.
-static bool photosAround(const std::vector<Eigen::Vector3f>& points, const std::vector<SE3>& cameras,
-                         const Vector3d& up, Vector3d* around_up) {
+bool photosAround(const std::vector<Eigen::Vector3f>& points, const std::vector<SE3>& cameras, const Vector3d& up,
+                  Vector3d* around_up) {
   if (cameras.size() < 3) return false;
   Vector3d centre;
   for (int k = 0; k < 3; ++k) {
@@ -254,6 +252,8 @@ static bool photosAround(const std::vector<Eigen::Vector3f>& points, const std::
   *around_up = n.normalized();
   return true;
 }
+
+}  // namespace
 
 Overview overviewViewpoint(const std::vector<Eigen::Vector3f>& points, const std::vector<SE3>& cameras,
                            const PreviewOptions& opts) {
