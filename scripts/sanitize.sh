@@ -84,7 +84,12 @@ case $kind in
           'BagRun\.'  # 10 s each in Release: two room runs, two KITTI 06 runs
           'LoopClosing\.RoomTwoLapsEveryRevisitClosedAndAteCutByThree$'  # 49 s in Release at load 6.6: two runs
           'TrainCli\.DepthImagesSuperviseTheTrainingViews$'  # 24 s in Release: a synthetic room, two trainings
-          'RunStop\.' 'TrainStop\.')  # signals timed for Release speed on whole KITTI / lego runs
+          'RunStop\.' 'TrainStop\.'  # signals timed for Release speed on whole KITTI / lego runs
+          # 85-99 s each under ASan (2026-12-07); their code runs in Distill.IsDeterministic...,
+          # PoseRefine.DivergedCorrection..., LineOfSight.* and Trainer.SurfacePoints..., and every
+          # writer in the tests of its own output (the kills are the Release stage's).
+          'Distill\.StudentReproducesTheTeacherInsideItsCube$' 'PoseRefine\.PerturbedViewConvergesBackOnTheSphere$'
+          'Trainer\.SparseDepthPutsTheSurfaceAtThePoints$' 'OutputKill\.EveryWriterSurvivesSigkill$')
     timeout=1800
     targets=(all)
     ;;
