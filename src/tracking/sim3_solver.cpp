@@ -137,7 +137,8 @@ Sim3Result solveSim3(const std::vector<Sim3Match>& matches, const Camera& c1, co
       const double w = double(count) / double(n), p_good = w * w * w;
       if (p_good >= 1.0) break;
       const double need = std::log(1.0 - o.probability) / std::log(1.0 - p_good);
-      if (std::isfinite(need)) max_iterations = std::min(o.max_iterations, int(std::ceil(need)));
+      // Capped in double before the cast (beyond INT_MAX the conversion is undefined: INT_MIN on x86).
+      if (std::isfinite(need)) max_iterations = int(std::ceil(std::min(need, double(o.max_iterations))));
     }
   }
   if (res.ransac_inliers < o.min_inliers) return res;

@@ -190,8 +190,10 @@ ModelEstimate ransac(const Points2d& x1, const Points2d& x2, int sample_size, co
       const double denom = std::log(1.0 - std::pow(w, sample_size));
       if (denom < 0) {
         const double need = std::log(1.0 - opt.confidence) / denom;
+        // Capped in double before the cast: at a low inlier ratio `need` exceeds INT_MAX, and the
+        // conversion (undefined; INT_MIN on x86) had ended the search after its first hypotheses.
         if (std::isfinite(need))
-          max_iter = std::min(opt.max_iterations, std::max(it + 1, static_cast<int>(std::ceil(need))));
+          max_iter = std::max(it + 1, static_cast<int>(std::ceil(std::min(need, double(opt.max_iterations)))));
       }
     }
   }

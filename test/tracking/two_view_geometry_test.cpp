@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <random>
 
 #include <Eigen/Geometry>
@@ -148,6 +149,40 @@ TEST(TwoViewGeometry, RansacFundamentalWithOutliersAndNoise) {
   const Reconstruction rec = reconstructFromFundamental(F.M, s.K, s.x1, s.x2, F.inliers, 2.0);
   EXPECT_LT(angleDeg(rec.pose.R, s.pose.R), 0.3);
   EXPECT_LT(dirAngleDeg(rec.pose.t, s.pose.t), 3.0);
+}
+
+// 35 % outliers: the first 8-point samples almost always hold one, and their F has few inliers. The
+// adaptive count for such a hypothesis is beyond INT_MAX; it used to be converted to int unchecked
+// (INT_MIN on x86), which ended the search after the first hypothesis (UBSan: float-cast-overflow).
+TEST(TwoViewGeometry, RansacKeepsDrawingWhenTheFirstHypothesesHaveFewInliers) {
+  Scene s = makeScene(300, false, 0.5, 7);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> ux(0, 640), uy(0, 480);
+  std::vector<char> truth(s.x1.size(), 1);
+  int n_true = 0;
+  for (size_t i = 0; i < s.x1.size(); ++i) {
+    if (i % 20 < 7) {
+      s.x2[i] = Eigen::Vector2d(ux(rng), uy(rng));
+      truth[i] = 0;
+    }
+    n_true += truth[i];
+  }
+  RansacOptions ro;
+  ro.threshold_px = 1.0;
+  const ModelEstimate F = findFundamentalRansac(s.x1, s.x2, ro);
+  ASSERT_TRUE(F.valid);
+  int agree_in = 0, false_in = 0;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    if (truth[i] && F.inliers[i]) ++agree_in;
+    if (!truth[i] && F.inliers[i]) ++false_in;
+  }
+  std::printf("F RANSAC at 65 %% inliers: %d iterations, %d of %d true inliers found, %d false\n", F.iterations,
+              agree_in, n_true, false_in);
+  EXPECT_GT(F.iterations, 10);
+  EXPECT_GT(agree_in, 0.9 * n_true);
+  EXPECT_LT(false_in, 15);
+  const Reconstruction rec = reconstructFromFundamental(F.M, s.K, s.x1, s.x2, F.inliers, 2.0);
+  EXPECT_LT(angleDeg(rec.pose.R, s.pose.R), 0.3);
 }
 
 TEST(TwoViewGeometry, HomographyOnPlaneMatchesOpenCVAndRecoversPose) {
