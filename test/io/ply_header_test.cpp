@@ -46,7 +46,7 @@ TEST(PlyHeader, AcceptsTheFilesPclAndNerfslamWrite) {
   }
   pcl::PolygonMesh mesh;
   pcl::toPCLPointCloud2(cloud, mesh.cloud);
-  for (uint32_t i = 0; i + 2 < 100; ++i) {
+  for (int i = 0; i + 2 < 100; ++i) {  // pcl::index_t is int
     pcl::Vertices v;
     v.vertices = {i, i + 1, i + 2};
     mesh.polygons.push_back(v);

@@ -79,7 +79,7 @@ pcl::PolygonMesh mesh(int variant) {
     v.push_back(pcl::PointXYZ(float(i), float(variant), float(i % 13)));
     if (i >= 2) {
       pcl::Vertices f;
-      f.vertices = {uint32_t(i - 2), uint32_t(i - 1), uint32_t(i)};
+      f.vertices = {i - 2, i - 1, i};  // pcl::index_t is int
       m.polygons.push_back(f);
     }
   }
