@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -125,26 +126,42 @@ TEST(TwoViewGeometry, DecomposeEssentialCheiralityPicksTruePoseAmongFour) {
   EXPECT_LT(dirAngleDeg(rec.pose.t, s.pose.t), 1e-6);
 }
 
-TEST(TwoViewGeometry, RansacFundamentalWithOutliersAndNoise) {
-  Scene s = makeScene(300, false, 0.5, 4);
-  std::mt19937 rng(9);
+// Replaces x2 of the correspondences `outlier` picks by uniform random points; returns which stay true.
+template <class Pick>
+std::vector<char> withOutliers(Scene& s, unsigned seed, Pick outlier) {
+  std::mt19937 rng(seed);
   std::uniform_real_distribution<double> ux(0, 640), uy(0, 480);
   std::vector<char> truth(s.x1.size(), 1);
-  for (size_t i = 0; i < s.x1.size(); i += 3) {  // 1/3 outliers
-    s.x2[i] = Eigen::Vector2d(ux(rng), uy(rng));
-    truth[i] = 0;
+  for (size_t i = 0; i < s.x1.size(); ++i)
+    if (outlier(i)) {
+      s.x2[i] = Eigen::Vector2d(ux(rng), uy(rng));
+      truth[i] = 0;
+    }
+  return truth;
+}
+
+struct InlierAgreement {
+  int true_found = 0, false_found = 0;
+};
+InlierAgreement agreement(const std::vector<char>& truth, const std::vector<char>& found) {
+  InlierAgreement a;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    if (truth[i] && found[i]) ++a.true_found;
+    if (!truth[i] && found[i]) ++a.false_found;
   }
+  return a;
+}
+
+TEST(TwoViewGeometry, RansacFundamentalWithOutliersAndNoise) {
+  Scene s = makeScene(300, false, 0.5, 4);
+  const std::vector<char> truth = withOutliers(s, 9, [](size_t i) { return i % 3 == 0; });  // 1/3 outliers
   RansacOptions ro;
   ro.threshold_px = 1.0;
   const ModelEstimate F = findFundamentalRansac(s.x1, s.x2, ro);
   ASSERT_TRUE(F.valid);
-  int agree_in = 0, false_in = 0;
-  for (size_t i = 0; i < truth.size(); ++i) {
-    if (truth[i] && F.inliers[i]) ++agree_in;
-    if (!truth[i] && F.inliers[i]) ++false_in;
-  }
-  EXPECT_GT(agree_in, 180);                    // of 200 true inliers
-  EXPECT_LT(false_in, 10);                     // random points occasionally lie near their epipolar line
+  const InlierAgreement a = agreement(truth, F.inliers);
+  EXPECT_GT(a.true_found, 180);                // of 200 true inliers
+  EXPECT_LT(a.false_found, 10);                // random points occasionally lie near their epipolar line
   EXPECT_LT(F.iterations, ro.max_iterations);  // adaptive count stopped early
   const Reconstruction rec = reconstructFromFundamental(F.M, s.K, s.x1, s.x2, F.inliers, 2.0);
   EXPECT_LT(angleDeg(rec.pose.R, s.pose.R), 0.3);
@@ -156,31 +173,18 @@ TEST(TwoViewGeometry, RansacFundamentalWithOutliersAndNoise) {
 // (INT_MIN on x86), which ended the search after the first hypothesis (UBSan: float-cast-overflow).
 TEST(TwoViewGeometry, RansacKeepsDrawingWhenTheFirstHypothesesHaveFewInliers) {
   Scene s = makeScene(300, false, 0.5, 7);
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<double> ux(0, 640), uy(0, 480);
-  std::vector<char> truth(s.x1.size(), 1);
-  int n_true = 0;
-  for (size_t i = 0; i < s.x1.size(); ++i) {
-    if (i % 20 < 7) {
-      s.x2[i] = Eigen::Vector2d(ux(rng), uy(rng));
-      truth[i] = 0;
-    }
-    n_true += truth[i];
-  }
+  const std::vector<char> truth = withOutliers(s, 3, [](size_t i) { return i % 20 < 7; });
+  const int n_true = int(std::count(truth.begin(), truth.end(), 1));
   RansacOptions ro;
   ro.threshold_px = 1.0;
   const ModelEstimate F = findFundamentalRansac(s.x1, s.x2, ro);
   ASSERT_TRUE(F.valid);
-  int agree_in = 0, false_in = 0;
-  for (size_t i = 0; i < truth.size(); ++i) {
-    if (truth[i] && F.inliers[i]) ++agree_in;
-    if (!truth[i] && F.inliers[i]) ++false_in;
-  }
+  const InlierAgreement a = agreement(truth, F.inliers);
   std::printf("F RANSAC at 65 %% inliers: %d iterations, %d of %d true inliers found, %d false\n", F.iterations,
-              agree_in, n_true, false_in);
+              a.true_found, n_true, a.false_found);
   EXPECT_GT(F.iterations, 10);
-  EXPECT_GT(agree_in, 0.9 * n_true);
-  EXPECT_LT(false_in, 15);
+  EXPECT_GT(a.true_found, 0.9 * n_true);
+  EXPECT_LT(a.false_found, 15);
   const Reconstruction rec = reconstructFromFundamental(F.M, s.K, s.x1, s.x2, F.inliers, 2.0);
   EXPECT_LT(angleDeg(rec.pose.R, s.pose.R), 0.3);
 }
