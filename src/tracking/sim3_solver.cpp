@@ -9,6 +9,8 @@
 
 #include <Eigen/SVD>
 
+#include "nerfslam/tracking/two_view_geometry.h"
+
 namespace nerfslam {
 namespace {
 
@@ -134,11 +136,9 @@ Sim3Result solveSim3(const std::vector<Sim3Match>& matches, const Camera& c1, co
       res.S12 = *S;
       res.inlier = in;
       // Samples needed for `probability` at this inlier ratio.
-      const double w = double(count) / double(n), p_good = w * w * w;
-      if (p_good >= 1.0) break;
-      const double need = std::log(1.0 - o.probability) / std::log(1.0 - p_good);
-      // Capped in double before the cast (beyond INT_MAX the conversion is undefined: INT_MIN on x86).
-      if (std::isfinite(need)) max_iterations = int(std::ceil(std::min(need, double(o.max_iterations))));
+      const double w = double(count) / double(n);
+      if (w >= 1.0) break;
+      max_iterations = ransacIterations(w, 3, o.probability, o.max_iterations);
     }
   }
   if (res.ransac_inliers < o.min_inliers) return res;

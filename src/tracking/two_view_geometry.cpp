@@ -14,6 +14,15 @@
 #include "nerfslam/core/pose.h"
 
 namespace nerfslam {
+
+int ransacIterations(double inlier_ratio, int sample_size, double confidence, int max_iterations) {
+  if (!(inlier_ratio > 0)) return max_iterations;
+  if (inlier_ratio >= 1) return 0;
+  const double need = std::log(1.0 - confidence) / std::log(1.0 - std::pow(inlier_ratio, sample_size));
+  // Undefined beyond INT_MAX (INT_MIN on x86, which had ended searches after their first hypothesis).
+  return std::isfinite(need) ? static_cast<int>(std::ceil(std::min(need, double(max_iterations)))) : max_iterations;
+}
+
 namespace {
 
 // Isotropic (Hartley) normalisation: centroid to the origin, mean distance sqrt(2).
@@ -187,14 +196,7 @@ ModelEstimate ransac(const Points2d& x1, const Points2d& x2, int sample_size, co
       }
       n_inl = best.num_inliers;
       const double w = static_cast<double>(n_inl) / n;
-      const double denom = std::log(1.0 - std::pow(w, sample_size));
-      if (denom < 0) {
-        const double need = std::log(1.0 - opt.confidence) / denom;
-        // Capped in double before the cast: at a low inlier ratio `need` exceeds INT_MAX, and the
-        // conversion (undefined; INT_MIN on x86) had ended the search after its first hypotheses.
-        if (std::isfinite(need))
-          max_iter = std::max(it + 1, static_cast<int>(std::ceil(std::min(need, double(opt.max_iterations)))));
-      }
+      if (w > 0) max_iter = std::max(it + 1, ransacIterations(w, sample_size, opt.confidence, opt.max_iterations));
     }
   }
   best.iterations = it;

@@ -168,6 +168,19 @@ TEST(TwoViewGeometry, RansacFundamentalWithOutliersAndNoise) {
   EXPECT_LT(dirAngleDeg(rec.pose.t, s.pose.t), 3.0);
 }
 
+// The adaptive count: the textbook figure where it is below the cap (8-point samples at 50 %
+// inliers, 99.9 %: 1,765), the cap where the figure passes it and where it passes INT_MAX (1.8e11 at
+// 5 %), and the two ends.
+TEST(TwoViewGeometry, RansacIterationsFollowTheFormulaAndAreCapped) {
+  EXPECT_EQ(ransacIterations(0.5, 8, 0.999, 5000), 1765);
+  EXPECT_EQ(ransacIterations(0.5, 8, 0.999, 500), 500);
+  EXPECT_EQ(ransacIterations(0.05, 8, 0.999, 500), 500);
+  EXPECT_EQ(ransacIterations(0.002, 3, 0.99, 300), 300);
+  EXPECT_EQ(ransacIterations(0.0, 8, 0.999, 500), 500);
+  EXPECT_EQ(ransacIterations(1.0, 8, 0.999, 500), 0);
+  EXPECT_EQ(ransacIterations(0.9, 4, 0.99, 500), 5);  // log(0.01) / log(1 - 0.6561) = 4.3
+}
+
 // 35 % outliers: the first 8-point samples almost always hold one, and their F has few inliers. The
 // adaptive count for such a hypothesis is beyond INT_MAX; it used to be converted to int unchecked
 // (INT_MIN on x86), which ended the search after the first hypothesis (UBSan: float-cast-overflow).

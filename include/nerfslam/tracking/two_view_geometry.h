@@ -32,6 +32,12 @@ struct RansacOptions {
   uint64_t seed = 42;
 };
 
+// RANSAC's adaptive iteration count: the samples of `sample_size` to draw for one all-inlier sample
+// with probability `confidence` when a fraction `inlier_ratio` of the data are inliers, at most
+// max_iterations (capped in double before the conversion: at low ratios the count exceeds INT_MAX).
+// max_iterations when the ratio gives no bound (<= 0), 0 when every datum is an inlier.
+int ransacIterations(double inlier_ratio, int sample_size, double confidence, int max_iterations);
+
 struct ModelEstimate {
   Eigen::Matrix3d M = Eigen::Matrix3d::Zero();  // F or H
   std::vector<char> inliers;                    // one flag per correspondence
