@@ -154,7 +154,7 @@ class NerfslamNode {
       sender_->stop();
       sender_->attach(nullptr);
     }
-    if (p_.node.save_on_shutdown) saveOnShutdown();
+    if (p_.node.save_on_shutdown) saveOnShutdown(*watchdog);
     setHandle(nullptr);
     std::lock_guard<std::mutex> lock(system_mutex_);
     if (system_) system_->finish(false);
@@ -233,21 +233,22 @@ class NerfslamNode {
   }
 
   // Exits the process (status 1) when the shutdown takes longer than `seconds`: a map folder's save
-  // is atomic, so the folder keeps its previous map.
+  // is atomic, so the folder keeps its previous map. The deadline counts from construction; the save
+  // itself checks it before it starts (expired()), so a watchdog thread the scheduler has not yet run
+  // cannot let an overdue shutdown save anyway.
   class ShutdownWatchdog {
    public:
-    ShutdownWatchdog(double seconds, const std::filesystem::path& dir) {
+    ShutdownWatchdog(double seconds, const std::filesystem::path& dir)
+        : seconds_(seconds),
+          dir_(dir),
+          deadline_(std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                           std::chrono::duration<double>(seconds))) {
       std::printf("shutdown: saving the map into %s (~save_on_shutdown; at most %.1f s)\n", dir.c_str(), seconds);
       std::fflush(stdout);
-      thread_ = std::thread([this, seconds, dir] {
+      thread_ = std::thread([this] {
         std::unique_lock<std::mutex> lock(mutex_);
-        if (cv_.wait_for(lock, std::chrono::duration<double>(seconds), [this] { return done_; })) return;
-        std::fprintf(stderr,
-                     "shutdown: ~save_on_shutdown_timeout (%.1f s) reached before the map was saved into %s; exiting "
-                     "with status 1 (the folder keeps its previous map)\n",
-                     seconds, dir.c_str());
-        std::fflush(stderr);
-        std::_Exit(1);
+        if (cv_.wait_until(lock, deadline_, [this] { return done_; })) return;
+        fire();
       });
     }
     ~ShutdownWatchdog() {
@@ -258,8 +259,20 @@ class NerfslamNode {
       cv_.notify_all();
       thread_.join();
     }
+    bool expired() const { return std::chrono::steady_clock::now() >= deadline_; }
+    [[noreturn]] void fire() const {
+      std::fprintf(stderr,
+                   "shutdown: ~save_on_shutdown_timeout (%.1f s) reached before the map was saved into %s; exiting "
+                   "with status 1 (the folder keeps its previous map)\n",
+                   seconds_, dir_.c_str());
+      std::fflush(stderr);
+      std::_Exit(1);
+    }
 
    private:
+    const double seconds_;
+    const std::filesystem::path dir_;
+    const std::chrono::steady_clock::time_point deadline_;
     std::mutex mutex_;
     std::condition_variable cv_;
     bool done_ = false;
@@ -269,7 +282,7 @@ class NerfslamNode {
   // ~save_on_shutdown, after the worker and the NeRF publisher stopped: mapping finishes the keyframes
   // it was given (no global BA), then the map folder is written as by ~save_map. stdout: rosconsole no
   // longer prints once ros::shutdown() has run.
-  void saveOnShutdown() {
+  void saveOnShutdown(const ShutdownWatchdog& watchdog) {
     const std::filesystem::path dir = saveOnShutdownDir();
     std::error_code ec;
     if (map_mode_ == nerfslam::MapMode::kLocalize && localization_only_ &&
@@ -282,6 +295,7 @@ class NerfslamNode {
       std::lock_guard<std::mutex> lock(system_mutex_);
       if (system_) system_->finish(false);
     }
+    if (watchdog.expired()) watchdog.fire();
     const auto t0 = std::chrono::steady_clock::now();
     std::string message;
     const auto outcome = nerf_pub_->saveMap(dir, &message);
