@@ -75,20 +75,58 @@ double OccupancyGrid::occupiedFraction() const {
   return double(n) / double(values_.size());
 }
 
+namespace {
+
+// The even bits of x gathered into the low 32 bits (bit 2k -> bit k).
+uint64_t gatherEvenBits(uint64_t x) {
+  x &= 0x5555555555555555ull;
+  x = (x | (x >> 1)) & 0x3333333333333333ull;
+  x = (x | (x >> 2)) & 0x0f0f0f0f0f0f0f0full;
+  x = (x | (x >> 4)) & 0x00ff00ff00ff00ffull;
+  x = (x | (x >> 8)) & 0x0000ffff0000ffffull;
+  return (x | (x >> 16)) & 0x00000000ffffffffull;
+}
+
+}  // namespace
+
+void OccupancyGrid::sortCellIndices(std::vector<uint32_t>& cells) {
+  // LSD radix sort in two passes of 12 bits: indices are below 8 cascades * 2^21 cells = 2^24.
+  static_assert(size_t(kCells) * 8 <= (size_t(1) << 24), "cell indices must fit 24 bits");
+  std::vector<uint32_t> tmp(cells.size());
+  for (int shift = 0; shift < 24; shift += 12) {
+    std::vector<uint32_t> start(4097, 0u);
+    for (uint32_t c : cells) ++start[((c >> shift) & 4095u) + 1];
+    for (size_t d = 1; d < start.size(); ++d) start[d] += start[d - 1];
+    for (uint32_t c : cells) tmp[start[(c >> shift) & 4095u]++] = c;
+    cells.swap(tmp);
+  }
+}
+
 void OccupancyGrid::rebuildBits() {
-  std::fill(bits_.begin(), bits_.end(), 0);
-  for (size_t i = 0; i < values_.size(); ++i)
-    if (values_[i] > threshold_) bits_[i / 64] |= uint64_t(1) << (i % 64);
-  // Max-pool finer cascades into the overlapping centre of the next coarser one.
+  // 64 consecutive values make one word (a loop the compiler vectorises).
+  const float t = threshold_;
+  for (size_t w = 0; w < bits_.size(); ++w) {
+    const float* v = values_.data() + 64 * w;
+    uint64_t b = 0;
+    for (int k = 0; k < 64; ++k) b |= uint64_t(v[k] > t) << k;
+    bits_[w] = b;
+  }
+  // Max-pool finer cascades into the overlapping centre of the next coarser one: cell (x, y, z) of
+  // cascade m-1 lies in cell (h/2 + x/2, h/2 + y/2, h/2 + z/2) of cascade m. A row of kRes = 128
+  // cells is two words; the pairs of x of a word fold into 32 bits of the coarser row.
+  static_assert(kRes == 128, "the max-pool below folds rows of two 64-bit words");
   constexpr int h = kRes / 2;
   for (int m = 1; m < cascades_; ++m) {
+    const uint64_t* fine = bits_.data() + size_t(m - 1) * kCells / 64;
+    uint64_t* coarse = bits_.data() + size_t(m) * kCells / 64;
     for (int z = 0; z < kRes; ++z)
-      for (int y = 0; y < kRes; ++y)
-        for (int x = 0; x < kRes; ++x) {
-          if (!occupiedCell(m - 1, x, y, z)) continue;
-          const size_t j = size_t(m) * kCells + cellIndex(h / 2 + x / 2, h / 2 + y / 2, h / 2 + z / 2);
-          bits_[j / 64] |= uint64_t(1) << (j % 64);
-        }
+      for (int y = 0; y < kRes; ++y) {
+        const uint32_t row = cellIndex(0, y, z) / 64;
+        const uint32_t crow = cellIndex(0, h / 2 + y / 2, h / 2 + z / 2) / 64;
+        const uint64_t w0 = fine[row], w1 = fine[row + 1];
+        if (w0) coarse[crow] |= gatherEvenBits(w0 | (w0 >> 1)) << 32;  // x 0..63 -> coarse x 32..63
+        if (w1) coarse[crow + 1] |= gatherEvenBits(w1 | (w1 >> 1));    // x 64..127 -> coarse x 64..95
+      }
   }
   rebuildCoarse();
 }
@@ -162,18 +200,14 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
     }
   }
 
-  // Evaluate the picks in cell order (a counting sort: the picks are a multiset of cell indices):
+  // Evaluate the picks in cell order (sorted: the picks are a multiset of cell indices):
   // neighbouring queries then share hash-table lines, where random order makes every level's
   // lookups miss the cache. The positions stay a pure function of the seed.
-  if (prm.uniform_cells >= 0 && !cells.empty()) {
-    std::vector<uint32_t> count(total, 0u);
-    for (uint32_t c : cells) ++count[c];
-    size_t k = 0;
-    for (size_t i = 0; i < total; ++i)
-      for (uint32_t r = count[i]; r > 0; --r) cells[k++] = uint32_t(i);
-  }
+  if (prm.uniform_cells >= 0 && !cells.empty()) sortCellIndices(cells);
 
-  std::vector<float> fresh(total, 0.f);
+  // values = max(values * decay, the largest density sampled in the cell): the decay first, then
+  // each sample's max (max is exact, so the order does not change a bit).
+  for (float& v : values_) v *= prm.decay;
   constexpr size_t kChunk = 1 << 16;
   std::vector<float> xyz(3 * kChunk), sigma(kChunk);
   for (size_t begin = 0; begin < cells.size(); begin += kChunk) {
@@ -194,8 +228,7 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
       if (!std::isfinite(v)) v = 0.f;  // a diverged field must not poison the grid
       const uint32_t g = cells[begin + k];
       if (block == 1) {
-        float& f = fresh[g];
-        f = std::max(f, v);
+        values_[g] = std::max(values_[g], v);
         continue;
       }
       const uint32_t c = g % kCells;
@@ -203,14 +236,14 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
       const int x0 = int(c % kRes), y0 = int((c / kRes) % kRes), z0 = int(c / (kRes * kRes));
       for (int z = z0; z < z0 + block; ++z)
         for (int y = y0; y < y0 + block; ++y)
-          for (int x = x0; x < x0 + block; ++x) fresh[base + cellIndex(x, y, z)] = v;
+          for (int x = x0; x < x0 + block; ++x) {
+            float& f = values_[base + cellIndex(x, y, z)];
+            f = std::max(f, v);
+          }
     }
   }
   double sum = 0;
-  for (size_t i = 0; i < total; ++i) {
-    values_[i] = std::max(values_[i] * prm.decay, fresh[i]);
-    if (i < size_t(kCells)) sum += values_[i];
-  }
+  for (size_t i = 0; i < size_t(kCells); ++i) sum += values_[i];
   threshold_ = std::min(prm.threshold_cap, float(sum / kCells));
   carveSegments(prm.keep_empty);
   pinCells(prm.keep_occupied);
@@ -218,25 +251,37 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
 }
 
 void OccupancyGrid::carveSegments(const std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>>& segments) {
-  auto carve = [this](const Eigen::Vector3f& p) {
-    const int mip = mipFromPos(p);
-    const float inv = invCascadeScale(mip);
-    int c[3];
-    for (int k = 0; k < 3; ++k) {
-      const float u = ((p[k] - 0.5f) * inv + 0.5f) * kRes;
-      if (!(u >= 0.f && u < float(kRes))) return;
-      c[k] = int(u);
+  // The cells depend on the segments alone: the same segments as at the last update (the poses and
+  // points have not moved, as through a final training) reuse them.
+  const bool same = segments.size() == carve_segments_.size() &&
+                    std::equal(segments.begin(), segments.end(), carve_segments_.begin(),
+                               [](const auto& a, const auto& b) { return a.first == b.first && a.second == b.second; });
+  if (!same) {
+    carve_segments_ = segments;
+    carve_cells_.clear();
+    auto carve = [this](const Eigen::Vector3f& p) {
+      const int mip = mipFromPos(p);
+      const float inv = invCascadeScale(mip);
+      int c[3];
+      for (int k = 0; k < 3; ++k) {
+        const float u = ((p[k] - 0.5f) * inv + 0.5f) * kRes;
+        if (!(u >= 0.f && u < float(kRes))) return;
+        c[k] = int(u);
+      }
+      carve_cells_.push_back(uint32_t(mip) * uint32_t(kCells) + cellIndex(c[0], c[1], c[2]));
+    };
+    for (const auto& [a, b] : segments) {
+      if (!a.allFinite() || !b.allFinite()) continue;
+      // Steps of half a cell of the cascade at the nearer end (cascades only grow along the segment
+      // away from the centre, so no cell is skipped where cells are larger), both ends included.
+      const float step = 0.5f * cellSize(std::min(mipFromPos(a), mipFromPos(b)));
+      const int n = std::max(1, int(std::ceil((b - a).norm() / step)));
+      for (int k = 0; k <= n; ++k) carve(a + (float(k) / float(n)) * (b - a));
     }
-    values_[size_t(mip) * kCells + cellIndex(c[0], c[1], c[2])] = 0.f;
-  };
-  for (const auto& [a, b] : segments) {
-    if (!a.allFinite() || !b.allFinite()) continue;
-    // Steps of half a cell of the cascade at the nearer end (cascades only grow along the segment
-    // away from the centre, so no cell is skipped where cells are larger), both ends included.
-    const float step = 0.5f * cellSize(std::min(mipFromPos(a), mipFromPos(b)));
-    const int n = std::max(1, int(std::ceil((b - a).norm() / step)));
-    for (int k = 0; k <= n; ++k) carve(a + (float(k) / float(n)) * (b - a));
+    std::sort(carve_cells_.begin(), carve_cells_.end());
+    carve_cells_.erase(std::unique(carve_cells_.begin(), carve_cells_.end()), carve_cells_.end());
   }
+  for (uint32_t i : carve_cells_) values_[i] = 0.f;
 }
 
 void OccupancyGrid::pinCells(const std::vector<Eigen::Vector3f>& points) {

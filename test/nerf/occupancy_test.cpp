@@ -111,6 +111,131 @@ TEST(Occupancy, CoarseCascadesIncludeFineOccupancy) {
   EXPECT_GT(checked, 100);
 }
 
+// The occupancy bits against the rule written out cell by cell: a cell of cascade m is occupied when
+// its value is above the threshold or when any cell of cascade m-1 inside it is (cell (x, y, z) of
+// cascade m-1 lies in (32 + x/2, 32 + y/2, 32 + z/2) of cascade m). Random sparse values, so
+// both the word-wise threshold and the folded max-pool see isolated and neighbouring cells.
+TEST(Occupancy, BitsAreTheThresholdedValuesMaxPooledIntoCoarserCascades) {
+  constexpr int kRes = OccupancyGrid::kRes;
+  const int cascades = 3;
+  OccupancyGrid grid(cascades);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  std::vector<float> values(size_t(cascades) * OccupancyGrid::kCells);
+  for (float& v : values) v = u(rng) < 0.002f ? 0.5f + u(rng) : 0.01f * u(rng);
+  const float threshold = 0.005f;
+  grid.setValues(values, threshold);
+  std::vector<uint8_t> expected(values.size());
+  for (size_t i = 0; i < values.size(); ++i) expected[i] = values[i] > threshold;
+  for (int m = 1; m < cascades; ++m)
+    for (int z = 0; z < kRes; ++z)
+      for (int y = 0; y < kRes; ++y)
+        for (int x = 0; x < kRes; ++x)
+          if (expected[size_t(m - 1) * OccupancyGrid::kCells + OccupancyGrid::cellIndex(x, y, z)])
+            expected[size_t(m) * OccupancyGrid::kCells + OccupancyGrid::cellIndex(32 + x / 2, 32 + y / 2, 32 + z / 2)] =
+                1;
+  size_t occupied = 0, wrong = 0;
+  for (int m = 0; m < cascades; ++m)
+    for (int z = 0; z < kRes; ++z)
+      for (int y = 0; y < kRes; ++y)
+        for (int x = 0; x < kRes; ++x) {
+          const bool e = expected[size_t(m) * OccupancyGrid::kCells + OccupancyGrid::cellIndex(x, y, z)] != 0;
+          occupied += e;
+          wrong += grid.occupiedCell(m, x, y, z) != e;
+        }
+  EXPECT_EQ(wrong, 0u);
+  EXPECT_GT(occupied, 12000u);
+  // The coarse blocks (4^3 and 16^3 cells) hold every occupied cell.
+  for (int m = 0; m < cascades; ++m)
+    for (int z = 0; z < kRes; ++z)
+      for (int y = 0; y < kRes; ++y)
+        for (int x = 0; x < kRes; ++x)
+          if (grid.occupiedCell(m, x, y, z)) {
+            ASSERT_TRUE(grid.occupiedBlock(m, 1, x >> 2, y >> 2, z >> 2));
+            ASSERT_TRUE(grid.occupiedBlock(m, 2, x >> 4, y >> 4, z >> 4));
+          }
+}
+
+// A random-pick update against the rule: the picks reach the density function in cell order, and
+// each cell's new value is max(old value * decay, the largest density sampled in it * kMinStep).
+// Carving: the segments' cells are emptied, the same segments again empty the same cells (cached),
+// and other segments empty theirs and no longer the old ones.
+TEST(Occupancy, RandomUpdateKeepsTheLargestSampleOverTheDecayedValue) {
+  // One cascade: a pick's cell is then the cell its position lies in (a coarser cascade's centre
+  // overlaps the finer one, where a position would not tell which was picked).
+  constexpr int kRes = OccupancyGrid::kRes;
+  OccupancyGrid grid(1);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  std::vector<float> values(size_t(OccupancyGrid::kCells));
+  for (float& v : values) v = u(rng) < 0.01f ? u(rng) : 0.f;
+  grid.setValues(values, 0.01f);
+  auto cellOf = [&](const float* p) {
+    int c[3];
+    for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(p[a] * kRes), 0, kRes - 1);
+    return OccupancyGrid::cellIndex(c[0], c[1], c[2]);
+  };
+  std::vector<float> sampled(values.size(), 0.f);
+  uint32_t last = 0;
+  bool ordered = true;
+  int64_t queries = 0;
+  OccupancyGrid::UpdateParams p;
+  p.uniform_cells = 100000;
+  p.decay = 0.9f;
+  p.threshold_cap = 0.01f;
+  p.seed = 17;
+  grid.update(
+      [&](const float* xyz, int n, float* sigma) {
+        for (int i = 0; i < n; ++i) {
+          // A density that differs from cell to cell: the pick's cell is recovered from its position.
+          const uint32_t c = cellOf(xyz + 3 * i);
+          ordered &= c >= last || queries == 0;
+          last = c;
+          ++queries;
+          sigma[i] = 50.f * u(rng);
+          sampled[c] = std::max(sampled[c], sigma[i] * kMinStep);
+        }
+      },
+      p);
+  EXPECT_TRUE(ordered) << "the picks are evaluated in cell order";
+  EXPECT_EQ(queries, 100000);
+  size_t wrong = 0, raised = 0;
+  for (size_t i = 0; i < values.size(); ++i) {
+    const float expected = std::max(values[i] * 0.9f, sampled[i]);
+    wrong += grid.values()[i] != expected;
+    raised += sampled[i] > values[i] * 0.9f;
+  }
+  EXPECT_EQ(wrong, 0u);
+  EXPECT_GT(raised, 50000u);
+
+  // Carving, cached across updates with the same segments.
+  OccupancyGrid carve(1);
+  carve.fill(1.f);
+  OccupancyGrid::UpdateParams c;
+  c.uniform_cells = 0;
+  c.decay = 1.f;
+  c.threshold_cap = 0.5f;
+  const Eigen::Vector3f a(0.1f, 0.5f, 0.5f), b(0.9f, 0.5f, 0.5f), d(0.5f, 0.1f, 0.3f), e(0.5f, 0.9f, 0.3f);
+  auto one = [](const float*, int n, float* s) { std::fill(s, s + n, 1.f); };
+  auto emptyAlong = [&](const Eigen::Vector3f& from, const Eigen::Vector3f& to) {
+    int empty = 0;
+    for (int k = 0; k <= 100; ++k) empty += !carve.occupied(from + (float(k) / 100.f) * (to - from), 0);
+    return empty;
+  };
+  c.keep_empty = {{a, b}};
+  carve.update(one, c);
+  EXPECT_EQ(emptyAlong(a, b), 101);
+  const double after_first = carve.occupiedFraction();
+  carve.setValues(std::vector<float>(OccupancyGrid::kCells, 1.f), 0.5f);
+  carve.update(one, c);  // the same segments: the cached cells
+  EXPECT_EQ(carve.occupiedFraction(), after_first);
+  carve.setValues(std::vector<float>(OccupancyGrid::kCells, 1.f), 0.5f);
+  c.keep_empty = {{d, e}};
+  carve.update(one, c);
+  EXPECT_EQ(emptyAlong(d, e), 101);
+  EXPECT_EQ(emptyAlong(a, b), 0);
+}
+
 // The samples of a skipping march must be exactly the lattice points of an unskipped march that fall
 // in occupied cells: skipping never drops an occupied cell's sample and never adds an empty one.
 void checkSkipping(double aabb_scale, unsigned seed) {

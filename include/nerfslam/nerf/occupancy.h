@@ -110,12 +110,16 @@ class OccupancyGrid {
   void rebuildCoarse();
   void pinCells(const std::vector<Eigen::Vector3f>& points);
   void carveSegments(const std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>>& segments);
+  static void sortCellIndices(std::vector<uint32_t>& cells);
 
   int cascades_;
   float threshold_ = 0;
   std::vector<float> values_;
   std::vector<uint64_t> bits_;       // cascades * kCells bits
   std::vector<uint64_t> coarse_[2];  // block levels 1 and 2 (see occupiedBlock)
+  // carveSegments' last segments and the cells they cross (sorted, unique).
+  std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> carve_segments_;
+  std::vector<uint32_t> carve_cells_;
 };
 
 }  // namespace nerfslam::nerf
