@@ -289,7 +289,7 @@ void NerfMapping::stepOnce() {
   }
   if (++since_refit_check_ >= opt_.refit_check_steps) {
     since_refit_check_ = 0;
-    if (checkRefit()) refit();
+    if (const Refit r = checkRefit(); r != Refit::kNone) refit(r);
   }
   const auto t0 = Clock::now();
   const nerf::StepStats st = trainer_->step();
@@ -396,14 +396,22 @@ std::vector<Eigen::Vector3d> NerfMapping::viewCentres() const {
   return cams;
 }
 
-bool NerfMapping::checkRefit() {
-  return nerf::sceneBoxOutgrown(model_->scene, mapPoints(), viewCentres(), opt_.refit_outside_fraction);
+NerfMapping::Refit NerfMapping::checkRefit() {
+  const auto points = mapPoints();
+  const auto cameras = viewCentres();
+  if (nerf::sceneBoxOutgrown(model_->scene, points, cameras, opt_.refit_outside_fraction)) return Refit::kGrow;
+  if (nerf::sceneBoxOversized(model_->scene, points, cameras, opt_.box_margin, opt_.refit_shrink_ratio))
+    return Refit::kShrink;
+  return Refit::kNone;
 }
 
-void NerfMapping::refit() {
+void NerfMapping::refit(Refit how_fitted) {
   const auto t0 = Clock::now();
   const nerf::SceneTransform old = model_->scene;
-  nerf::SceneTransform scene = nerf::refitSceneBox(old, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale);
+  nerf::SceneTransform scene =
+      how_fitted == Refit::kShrink
+          ? nerf::fitSceneBox(mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale)
+          : nerf::refitSceneBox(old, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale);
   scene.cone_angle = opt_.cone_angle;
   int64_t refits;
   {
@@ -430,8 +438,10 @@ void NerfMapping::refit() {
     const double loss = nerf::distill(*model_, *fresh, d);
     how = fmt::format("old field distilled in {} steps (final loss {:.4f})", opt_.distill_steps, loss);
   }
-  spdlog::info("NeRF: the map outgrew the scene box; re-fitted (scale {:.4g} -> {:.4g}), {}", old.scale, scene.scale,
-               how);
+  spdlog::info(
+      "NeRF: {}; re-fitted (scale {:.4g} -> {:.4g}), {}",
+      how_fitted == Refit::kShrink ? "the map is much smaller than the scene box" : "the map outgrew the scene box",
+      old.scale, scene.scale, how);
   std::vector<nerf::TrainingView> views;
   std::vector<nerf::Appearance> appearance;
   std::vector<nerf::PoseCorrection> corrections;
@@ -457,7 +467,7 @@ void NerfMapping::refit() {
 bool NerfMapping::refitNow() {
   const auto lock = lockModel();
   if (!trainer_) return false;
-  refit();
+  refit(Refit::kGrow);
   return true;
 }
 
@@ -485,7 +495,7 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
   if (!trainer_) return 0;
   // The map is complete: fit the box to it now, not refit_check_steps into the training.
   since_refit_check_ = 0;
-  if (checkRefit()) refit();
+  if (const Refit r = checkRefit(); r != Refit::kNone) refit(r);
   updateWeights();
   if (threads > 0) trainer_->setThreads(threads);
   if (opt_.final_samples_per_step > 0) {

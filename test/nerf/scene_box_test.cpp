@@ -1,5 +1,5 @@
 // The scene box (nerf/scene_box.h): robust bounds of a sparse map, the cube transform, the first
-// fit, the outgrown test and the re-fit around the map and the old box.
+// fit, the outgrown and oversized tests and the re-fit around the map and the old box.
 #include "nerfslam/nerf/scene_box.h"
 
 #include <gtest/gtest.h>
@@ -118,6 +118,30 @@ TEST(SceneBox, RefitHoldsTheOldBoxAndTheMapAndGrowsAtLeastOneAndAHalfTimes) {
   EXPECT_EQ(s.aabb_scale, 2.0);
   for (const double c : {0.0, 1.0}) EXPECT_TRUE(insideUnitCube(s.toNerf(old.toWorld(Eigen::Vector3d::Constant(c)))));
   EXPECT_FALSE(sceneBoxOutgrown(s, grown, cams, 0.05));
+}
+
+// A monocular map's first points spread far (a short baseline triangulates distant points badly):
+// the box fitted to them is several times the box of the finished map, which is then oversized and
+// fitted anew; a box fitted to the finished map is not, nor is any box with the ratio 0.
+TEST(SceneBox, OversizedWhenTheFinishedMapIsMuchSmallerThanTheFirstBox) {
+  const std::vector<Eigen::Vector3d> cams = {Eigen::Vector3d(0.5, 0.5, 0.0), Eigen::Vector3d(0.5, 0.5, 0.1)};
+  std::vector<Eigen::Vector3d> first;
+  for (const auto& p : gridPoints())
+    first.push_back(Eigen::Vector3d(0.5, 0.5, 0.5) + 8.0 * (p - Eigen::Vector3d(0.5, 0.5, 0.5)));
+  const SceneTransform box = fitSceneBox(first, cams, 1.2, 2.0);
+  const std::vector<Eigen::Vector3d> finished = gridPoints();  // an eighth of the first extent
+  EXPECT_FALSE(sceneBoxOutgrown(box, finished, cams, 0.05));
+  EXPECT_TRUE(sceneBoxOversized(box, finished, cams, 1.2, 0.5));
+  EXPECT_FALSE(sceneBoxOversized(box, finished, cams, 1.2, 0.0));
+  EXPECT_FALSE(sceneBoxOversized(box, {}, cams, 1.2, 0.5));
+  const SceneTransform fitted = fitSceneBox(finished, cams, 1.2, 2.0);
+  EXPECT_FALSE(sceneBoxOversized(fitted, finished, cams, 1.2, 0.5));
+  EXPECT_FALSE(sceneBoxOutgrown(fitted, finished, cams, 0.05));
+  EXPECT_NEAR(fitted.scale / box.scale, 8.0, 0.5);
+  // A box only a little larger than the map's own (0.6 of its side) is kept at the ratio 0.5.
+  SceneTransform larger = fitted;
+  larger.scale = fitted.scale * 0.6;
+  EXPECT_FALSE(sceneBoxOversized(larger, finished, cams, 1.2, 0.5));
 }
 
 TEST(SceneBox, InsideUnitCubeIncludesItsFaces) {

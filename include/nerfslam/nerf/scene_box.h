@@ -1,7 +1,9 @@
 #pragma once
 // The NeRF's scene box fitted to a sparse map (points and camera centres), for online training:
 // fitSceneBox places a first box, sceneBoxOutgrown tells when the map has left it, and
-// refitSceneBox grows it around the map and the old box.
+// refitSceneBox grows it around the map and the old box; sceneBoxOversized tells when the map has
+// become much smaller than the box (a monocular map's first points, triangulated over a short
+// baseline, reach far beyond what the finished map holds), and the box is then fitted anew.
 //
 // The box is the robust extent of the points (per axis the 2nd..98th percentile) widened to hold
 // the camera centres that are in the scene (camerasInScene), made a cube of side (largest extent) *
@@ -52,6 +54,13 @@ SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std
 // the points, lies outside the unit cube of `scene` (false without points: nothing to fit a new box to).
 bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
                       const std::vector<Eigen::Vector3d>& cameras, double outside_fraction);
+
+// True when the box fitted afresh to the map (fitSceneBox) has a side below `ratio` times the side
+// of `scene`'s (false without points, or with ratio <= 0). KITTI 06: the box fitted to the first
+// 329 points was 2.5 times the side of the box of the finished map's 1,926, so the hash grid and
+// the occupancy grid spent 60 % of their resolution on each axis on space the map does not reach.
+bool sceneBoxOversized(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
+                       const std::vector<Eigen::Vector3d>& cameras, double margin, double ratio);
 
 // A new box around the map that keeps the old box inside it and is at least 1.5 times its size, so
 // re-fits stay rare.

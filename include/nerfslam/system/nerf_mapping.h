@@ -19,7 +19,9 @@
 // cascades). When the map later outgrows the box (more than refit_outside_fraction of the points, or
 // any camera, outside it) the box is re-fitted around everything and the old field is distilled into
 // the new one (nerf/distill.h) before training continues, so what was learned is carried over rather
-// than dropped.
+// than dropped. When the map has become much smaller than the box (the box fitted to it afresh has
+// a side below refit_shrink_ratio of the box's: a monocular map's first points reach far beyond the
+// finished map), the box is fitted anew to the map and the field inside it distilled the same way.
 //
 // Thread budget: the trainer runs `train.threads` threads at a lower scheduling priority (nice
 // `nice_increment`): tracking keeps its core, and when the machine is short of cores the NeRF yields.
@@ -140,7 +142,11 @@ struct NerfMappingOptions {
   bool enabled = true;
   int nice_increment = 19;
   double downscale = 2.0;
-  int log2_hashmap_size = 19;
+  // 2^17 entries per level, not instant-ngp's 2^19: on a CPU the sparse Adam's cost grows with the
+  // table (each step touches most of a level's cache lines), and in the minute of final training the
+  // steps matter more than the capacity: 1.5-1.6 times the steps and +0.4 dB held-out on the room,
+  // New Tsukuba and KITTI 06 (docs/benchmarks.md); 2^16 lost again on the room.
+  int log2_hashmap_size = 17;
   int keyframe_queue = 32;
   double min_view_distance = 0.05;
   double min_view_angle_deg = 5.0;
@@ -154,6 +160,7 @@ struct NerfMappingOptions {
   double cone_angle = 1.0 / 64.0;  // nerf::SceneTransform::cone_angle of the boxes this fits
   double refit_outside_fraction = 0.05;
   int refit_check_steps = 200;
+  double refit_shrink_ratio = 0.5;
   int distill_steps = 300;
   double psnr_interval_s = 1.0;
   double heldout_interval_s = 10.0;
@@ -207,6 +214,9 @@ struct NerfMappingOptions {
     v("refit_outside_fraction", refit_outside_fraction,
       "Re-fit the box when more than this fraction of the map points is outside it", check::range(0.0, 1.0));
     v("refit_check_steps", refit_check_steps, "Steps between box checks", check::range(1, 1000000));
+    v("refit_shrink_ratio", refit_shrink_ratio,
+      "Fit the box anew when the box fitted to the map has a side below this fraction of the box's (0: never shrink)",
+      check::range(0.0, 1.0));
     v("distill_steps", distill_steps, "Steps distilling the old field into the re-fitted one",
       check::range(0, 1000000));
     v("psnr_interval_s", psnr_interval_s, "Seconds between running-PSNR updates (newest keyframes' training rays)",
@@ -351,8 +361,10 @@ class NerfMapping {
   std::vector<std::vector<nerf::SurfacePoint>> surfacePoints(const std::vector<View>& views) const;
   void refreshPoses();
   void updateWeights();
-  bool checkRefit();
-  void refit();
+  enum class Refit { kNone, kGrow, kShrink };
+  Refit checkRefit();
+  // kGrow: around the map and the old box (refitSceneBox); kShrink: fitted to the map alone.
+  void refit(Refit how);
   void measurePsnr();
   void measureHeldout();
   void keepHeldout(const KeyframeEvent& ev);
