@@ -43,6 +43,14 @@ bool PlaceRecognition::erase(KeyframeId id) {
   return db_.erase(uint64_t(id));
 }
 
+size_t PlaceRecognition::eraseMissing(const std::vector<KeyframeId>& alive) {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  size_t erased = 0;
+  for (uint64_t k : db_.keyframes())
+    if (!std::binary_search(alive.begin(), alive.end(), KeyframeId(k))) erased += db_.erase(k);
+  return erased;
+}
+
 void PlaceRecognition::clear() {
   std::unique_lock<std::shared_mutex> lock(mutex_);
   db_.clear();

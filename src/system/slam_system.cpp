@@ -91,7 +91,10 @@ SlamSystem::SlamSystem(const Camera& camera, SystemOptions options, std::unique_
       loop_ = std::make_unique<LoopClosing>(*map_, mapping_.get(), std::move(voc), opt_.loop_closing, places_);
     // The loop closer adds the keyframes it is given (after its own query); the others are added here.
     mapping_->setKeyframeProcessed([this](KeyframeId id) {
-      if (!loop_ || !loop_->submit(id)) places_->addKeyframe(*map_, id);
+      if (!loop_ || !loop_->submit(id)) {
+        places_->eraseMissing(map_->keyframeIds());  // culled keyframes (the loop closer does this itself)
+        places_->addKeyframe(*map_, id);
+      }
     });
   }
   if (opt_.nerf.enabled) nerf_ = std::make_unique<NerfMapping>(*map_, mapping_->bus(), opt_.nerf);

@@ -56,6 +56,13 @@ bool KeyframeDatabase::erase(uint64_t keyframe) {
   return true;
 }
 
+std::vector<uint64_t> KeyframeDatabase::keyframes() const {
+  std::vector<uint64_t> out;
+  out.reserve(slot_of_.size());
+  for (const auto& [k, slot] : slot_of_) out.push_back(k);
+  return out;
+}
+
 void KeyframeDatabase::clear() {
   postings_.clear();
   slots_.clear();

@@ -74,6 +74,12 @@ TEST(PlaceRecognition, RelocalisationFindsTheKeyframeOfTheImageInAMapOfNAnd3N) {
   large.eraseKeyframe(gone);
   const auto c = db_large.relocalizationCandidates(large, db_large.bagOfWords(*kitti_frames[5]));
   EXPECT_EQ(std::count(c.begin(), c.end(), gone), 0);
+  // Its bag leaves the database with eraseMissing (the keyframes still in the map stay).
+  EXPECT_TRUE(db_large.contains(gone));
+  EXPECT_EQ(db_large.eraseMissing(large.keyframeIds()), 1u);
+  EXPECT_FALSE(db_large.contains(gone));
+  EXPECT_EQ(db_large.size(), 3 * n - 1);
+  EXPECT_EQ(db_large.eraseMissing(large.keyframeIds()), 0u);
   EXPECT_TRUE(db_large.relocalizationCandidates(large, BowVector{}).empty());
   db_large.clear();
   EXPECT_EQ(db_large.size(), 0u);

@@ -51,6 +51,9 @@ class PlaceRecognition {
   // Every keyframe of `map` not in the database yet; returns how many were added.
   size_t addMapKeyframes(const Map& map);
   bool erase(KeyframeId id);
+  // Removes every keyframe not in `alive` (sorted ascending, e.g. Map::keyframeIds(): the keyframes
+  // culled since they were added, whose bags would otherwise stay for the whole run); returns how many.
+  size_t eraseMissing(const std::vector<KeyframeId>& alive);
   void clear();
   size_t size() const;
   bool contains(KeyframeId id) const;

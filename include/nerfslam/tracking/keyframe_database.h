@@ -56,6 +56,8 @@ class KeyframeDatabase {
   void clear();
   bool contains(uint64_t keyframe) const { return slot_of_.count(keyframe) > 0; }
   size_t size() const { return slot_of_.size(); }
+  // The keyframes in the database, in no particular order.
+  std::vector<uint64_t> keyframes() const;
   size_t wordCount() const { return word_count_; }
   // The stored bag of a keyframe (nullptr if absent).
   const BowVector* bow(uint64_t keyframe) const;
