@@ -167,7 +167,7 @@ TEST(Occupancy, RandomUpdateKeepsTheLargestSampleOverTheDecayedValue) {
   OccupancyGrid grid(1);
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(0.f, 1.f);
-  std::vector<float> values(size_t(OccupancyGrid::kCells));
+  std::vector<float> values(static_cast<size_t>(OccupancyGrid::kCells));
   for (float& v : values) v = u(rng) < 0.01f ? u(rng) : 0.f;
   grid.setValues(values, 0.01f);
   auto cellOf = [&](const float* p) {
