@@ -85,11 +85,13 @@ bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vect
   return camera_out || double(outside) > outside_fraction * double(points.size());
 }
 
-bool sceneBoxOversized(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
-                       const std::vector<Eigen::Vector3d>& cameras, double margin, double ratio) {
-  if (points.empty() || ratio <= 0) return false;
+std::optional<SceneTransform> shrunkSceneBox(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
+                                             const std::vector<Eigen::Vector3d>& cameras, double margin, double ratio) {
+  if (points.empty() || ratio <= 0) return std::nullopt;
   // Sides in world units are 1 / scale; the aabb_scale is the same for both boxes.
-  return fitSceneBox(points, cameras, margin, scene.aabb_scale).scale * ratio > scene.scale;
+  const SceneTransform fitted = fitSceneBox(points, cameras, margin, scene.aabb_scale);
+  if (fitted.scale * ratio > scene.scale) return fitted;
+  return std::nullopt;
 }
 
 SceneTransform refitSceneBox(const SceneTransform& old, const std::vector<Eigen::Vector3d>& points,

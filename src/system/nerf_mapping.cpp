@@ -289,7 +289,7 @@ void NerfMapping::stepOnce() {
   }
   if (++since_refit_check_ >= opt_.refit_check_steps) {
     since_refit_check_ = 0;
-    if (const Refit r = checkRefit(); r != Refit::kNone) refit(r);
+    if (const auto box = newBox()) refit(*box);
   }
   const auto t0 = Clock::now();
   const nerf::StepStats st = trainer_->step();
@@ -396,22 +396,20 @@ std::vector<Eigen::Vector3d> NerfMapping::viewCentres() const {
   return cams;
 }
 
-NerfMapping::Refit NerfMapping::checkRefit() {
+std::optional<NerfMapping::NewBox> NerfMapping::newBox() const {
   const auto points = mapPoints();
   const auto cameras = viewCentres();
-  if (nerf::sceneBoxOutgrown(model_->scene, points, cameras, opt_.refit_outside_fraction)) return Refit::kGrow;
-  if (nerf::sceneBoxOversized(model_->scene, points, cameras, opt_.box_margin, opt_.refit_shrink_ratio))
-    return Refit::kShrink;
-  return Refit::kNone;
+  if (nerf::sceneBoxOutgrown(model_->scene, points, cameras, opt_.refit_outside_fraction))
+    return NewBox{nerf::refitSceneBox(model_->scene, points, cameras, opt_.box_margin, opt_.aabb_scale), false};
+  if (auto shrunk = nerf::shrunkSceneBox(model_->scene, points, cameras, opt_.box_margin, opt_.refit_shrink_ratio))
+    return NewBox{*shrunk, true};
+  return std::nullopt;
 }
 
-void NerfMapping::refit(Refit how_fitted) {
+void NerfMapping::refit(const NewBox& box) {
   const auto t0 = Clock::now();
   const nerf::SceneTransform old = model_->scene;
-  nerf::SceneTransform scene =
-      how_fitted == Refit::kShrink
-          ? nerf::fitSceneBox(mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale)
-          : nerf::refitSceneBox(old, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale);
+  nerf::SceneTransform scene = box.scene;
   scene.cone_angle = opt_.cone_angle;
   int64_t refits;
   {
@@ -438,10 +436,9 @@ void NerfMapping::refit(Refit how_fitted) {
     const double loss = nerf::distill(*model_, *fresh, d);
     how = fmt::format("old field distilled in {} steps (final loss {:.4f})", opt_.distill_steps, loss);
   }
-  spdlog::info(
-      "NeRF: {}; re-fitted (scale {:.4g} -> {:.4g}), {}",
-      how_fitted == Refit::kShrink ? "the map is much smaller than the scene box" : "the map outgrew the scene box",
-      old.scale, scene.scale, how);
+  spdlog::info("NeRF: {}; re-fitted (scale {:.4g} -> {:.4g}), {}",
+               box.shrunk ? "the map is much smaller than the scene box" : "the map outgrew the scene box", old.scale,
+               scene.scale, how);
   std::vector<nerf::TrainingView> views;
   std::vector<nerf::Appearance> appearance;
   std::vector<nerf::PoseCorrection> corrections;
@@ -467,7 +464,7 @@ void NerfMapping::refit(Refit how_fitted) {
 bool NerfMapping::refitNow() {
   const auto lock = lockModel();
   if (!trainer_) return false;
-  refit(Refit::kGrow);
+  refit({nerf::refitSceneBox(model_->scene, mapPoints(), viewCentres(), opt_.box_margin, opt_.aabb_scale), false});
   return true;
 }
 
@@ -495,7 +492,7 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
   if (!trainer_) return 0;
   // The map is complete: fit the box to it now, not refit_check_steps into the training.
   since_refit_check_ = 0;
-  if (const Refit r = checkRefit(); r != Refit::kNone) refit(r);
+  if (const auto box = newBox()) refit(*box);
   updateWeights();
   if (threads > 0) trainer_->setThreads(threads);
   if (opt_.final_samples_per_step > 0) {

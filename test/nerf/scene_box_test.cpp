@@ -1,5 +1,5 @@
 // The scene box (nerf/scene_box.h): robust bounds of a sparse map, the cube transform, the first
-// fit, the outgrown and oversized tests and the re-fit around the map and the old box.
+// fit, the outgrown test, the re-fit around the map and the old box and the shrunk box.
 #include "nerfslam/nerf/scene_box.h"
 
 #include <gtest/gtest.h>
@@ -131,17 +131,21 @@ TEST(SceneBox, OversizedWhenTheFinishedMapIsMuchSmallerThanTheFirstBox) {
   const SceneTransform box = fitSceneBox(first, cams, 1.2, 2.0);
   const std::vector<Eigen::Vector3d> finished = gridPoints();  // an eighth of the first extent
   EXPECT_FALSE(sceneBoxOutgrown(box, finished, cams, 0.05));
-  EXPECT_TRUE(sceneBoxOversized(box, finished, cams, 1.2, 0.5));
-  EXPECT_FALSE(sceneBoxOversized(box, finished, cams, 1.2, 0.0));
-  EXPECT_FALSE(sceneBoxOversized(box, {}, cams, 1.2, 0.5));
+  const std::optional<SceneTransform> shrunk = shrunkSceneBox(box, finished, cams, 1.2, 0.5);
+  EXPECT_FALSE(shrunkSceneBox(box, finished, cams, 1.2, 0.0));
+  EXPECT_FALSE(shrunkSceneBox(box, {}, cams, 1.2, 0.5));
   const SceneTransform fitted = fitSceneBox(finished, cams, 1.2, 2.0);
-  EXPECT_FALSE(sceneBoxOversized(fitted, finished, cams, 1.2, 0.5));
+  ASSERT_TRUE(shrunk);  // the box fitted to the finished map
+  EXPECT_EQ(shrunk->scale, fitted.scale);
+  EXPECT_EQ(shrunk->offset, fitted.offset);
+  EXPECT_EQ(shrunk->aabb_scale, box.aabb_scale);
+  EXPECT_FALSE(shrunkSceneBox(fitted, finished, cams, 1.2, 0.5));
   EXPECT_FALSE(sceneBoxOutgrown(fitted, finished, cams, 0.05));
   EXPECT_NEAR(fitted.scale / box.scale, 8.0, 0.5);
   // A box only a little larger than the map's own (0.6 of its side) is kept at the ratio 0.5.
   SceneTransform larger = fitted;
   larger.scale = fitted.scale * 0.6;
-  EXPECT_FALSE(sceneBoxOversized(larger, finished, cams, 1.2, 0.5));
+  EXPECT_FALSE(shrunkSceneBox(larger, finished, cams, 1.2, 0.5));
 }
 
 TEST(SceneBox, InsideUnitCubeIncludesItsFaces) {

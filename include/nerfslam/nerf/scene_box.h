@@ -1,9 +1,9 @@
 #pragma once
 // The NeRF's scene box fitted to a sparse map (points and camera centres), for online training:
 // fitSceneBox places a first box, sceneBoxOutgrown tells when the map has left it, and
-// refitSceneBox grows it around the map and the old box; sceneBoxOversized tells when the map has
-// become much smaller than the box (a monocular map's first points, triangulated over a short
-// baseline, reach far beyond what the finished map holds), and the box is then fitted anew.
+// refitSceneBox grows it around the map and the old box; shrunkSceneBox fits the box anew when the
+// map has become much smaller than it (a monocular map's first points, triangulated over a short
+// baseline, reach far beyond what the finished map holds).
 //
 // The box is the robust extent of the points (per axis the 2nd..98th percentile) widened to hold
 // the camera centres that are in the scene (camerasInScene), made a cube of side (largest extent) *
@@ -13,6 +13,7 @@
 // outside (a ring of photos around it) are not: a box holding them left the temple of the
 // Middlebury ring 20 of the occupancy grid's 128 cells across. Rays from cameras outside the box
 // start where they enter it.
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -55,12 +56,13 @@ SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std
 bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
                       const std::vector<Eigen::Vector3d>& cameras, double outside_fraction);
 
-// True when the box fitted afresh to the map (fitSceneBox) has a side below `ratio` times the side
-// of `scene`'s (false without points, or with ratio <= 0). KITTI 06: the box fitted to the first
-// 329 points was 2.5 times the side of the box of the finished map's 1,926, so the hash grid and
-// the occupancy grid spent 60 % of their resolution on each axis on space the map does not reach.
-bool sceneBoxOversized(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
-                       const std::vector<Eigen::Vector3d>& cameras, double margin, double ratio);
+// The box fitted afresh to the map (fitSceneBox, with `scene`'s aabb_scale) when its side is below
+// `ratio` times the side of `scene`'s; nothing without points, with ratio <= 0, or when `scene` is
+// not that much larger. KITTI 06: the box fitted to the first 329 points was 2.5 times the side of
+// the box of the finished map's 1,926, so the hash grid and the occupancy grid spent 60 % of their
+// resolution on each axis on space the map does not reach.
+std::optional<SceneTransform> shrunkSceneBox(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
+                                             const std::vector<Eigen::Vector3d>& cameras, double margin, double ratio);
 
 // A new box around the map that keeps the old box inside it and is at least 1.5 times its size, so
 // re-fits stay rare.

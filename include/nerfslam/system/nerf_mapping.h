@@ -35,6 +35,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -361,10 +362,14 @@ class NerfMapping {
   std::vector<std::vector<nerf::SurfacePoint>> surfacePoints(const std::vector<View>& views) const;
   void refreshPoses();
   void updateWeights();
-  enum class Refit { kNone, kGrow, kShrink };
-  Refit checkRefit();
-  // kGrow: around the map and the old box (refitSceneBox); kShrink: fitted to the map alone.
-  void refit(Refit how);
+  // The box the map needs when it needs another: grown around the map and the old box when the map
+  // outgrew it (refitSceneBox), fitted to the map alone when the map is much smaller (shrunkSceneBox).
+  struct NewBox {
+    nerf::SceneTransform scene;
+    bool shrunk = false;
+  };
+  std::optional<NewBox> newBox() const;
+  void refit(const NewBox& box);
   void measurePsnr();
   void measureHeldout();
   void keepHeldout(const KeyframeEvent& ev);
