@@ -1,6 +1,7 @@
 #include "nerfslam/nerf/scene_box.h"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 namespace nerfslam::nerf {
@@ -46,6 +47,25 @@ std::vector<Eigen::Vector3d> inScene(const Bounds& pts, const std::vector<Eigen:
 
 }  // namespace
 
+std::vector<Eigen::Vector3d> pointsNearCameras(const std::vector<Eigen::Vector3d>& points,
+                                               const std::vector<Eigen::Vector3d>& cameras) {
+  if (points.empty() || cameras.empty()) return points;
+  std::vector<double> dist(points.size());
+  for (size_t i = 0; i < points.size(); ++i) {
+    double best = std::numeric_limits<double>::infinity();
+    for (const auto& c : cameras) best = std::min(best, (points[i] - c).squaredNorm());
+    dist[i] = std::sqrt(best);
+  }
+  std::vector<double> sorted = dist;
+  std::nth_element(sorted.begin(), sorted.begin() + long(sorted.size() / 2), sorted.end());
+  const double reach = kPointReach * sorted[sorted.size() / 2];
+  std::vector<Eigen::Vector3d> near;
+  near.reserve(points.size());
+  for (size_t i = 0; i < points.size(); ++i)
+    if (dist[i] <= reach) near.push_back(points[i]);
+  return near;
+}
+
 Bounds robustBounds(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras) {
   return widened(pointBounds(points), cameras);
 }
@@ -68,21 +88,24 @@ SceneTransform cubeTransform(const Bounds& b, double margin, double aabb_scale, 
 SceneTransform fitSceneBox(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& cameras,
                            double margin, double aabb_scale) {
   // A map smaller than the step between its first two views is not yet a scene to fit to.
-  const Bounds pts = pointBounds(points);
+  const Bounds pts = pointBounds(pointsNearCameras(points, cameras));
   const bool tiny = cameras.size() >= 2 && (pts.hi - pts.lo).maxCoeff() < (cameras[0] - cameras[1]).norm();
   const std::vector<Eigen::Vector3d> in = tiny ? cameras : inScene(pts, cameras);
+  // At least as wide as the cameras' first-to-last distance (a half side of half of it): a long
+  // drive is held by the widened bounds already, and a half side of the whole distance doubled its box.
   const double baseline = in.empty() ? 0.0 : (in.front() - in.back()).norm();
-  return cubeTransform(widened(pts, in), margin, aabb_scale, std::max(baseline, 1e-3));
+  return cubeTransform(widened(pts, in), margin, aabb_scale, std::max(0.5 * baseline, 1e-3));
 }
 
 bool sceneBoxOutgrown(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
                       const std::vector<Eigen::Vector3d>& cameras, double outside_fraction) {
   if (points.empty()) return false;
+  const std::vector<Eigen::Vector3d> near = pointsNearCameras(points, cameras);
   size_t outside = 0;
-  for (const auto& p : points) outside += !insideUnitCube(scene.toNerf(p));
+  for (const auto& p : near) outside += !insideUnitCube(scene.toNerf(p));
   bool camera_out = false;
-  for (const auto& c : camerasInScene(points, cameras)) camera_out |= !insideUnitCube(scene.toNerf(c));
-  return camera_out || double(outside) > outside_fraction * double(points.size());
+  for (const auto& c : camerasInScene(near, cameras)) camera_out |= !insideUnitCube(scene.toNerf(c));
+  return camera_out || double(outside) > outside_fraction * double(near.size());
 }
 
 std::optional<SceneTransform> shrunkSceneBox(const SceneTransform& scene, const std::vector<Eigen::Vector3d>& points,
@@ -96,7 +119,7 @@ std::optional<SceneTransform> shrunkSceneBox(const SceneTransform& scene, const 
 
 SceneTransform refitSceneBox(const SceneTransform& old, const std::vector<Eigen::Vector3d>& points,
                              const std::vector<Eigen::Vector3d>& cameras, double margin, double aabb_scale) {
-  const Bounds pts = pointBounds(points);
+  const Bounds pts = pointBounds(pointsNearCameras(points, cameras));
   Bounds b = widened(pts, inScene(pts, cameras));
   b.lo = b.lo.cwiseMin(old.toWorld(Eigen::Vector3d::Zero()));
   b.hi = b.hi.cwiseMax(old.toWorld(Eigen::Vector3d::Ones()));

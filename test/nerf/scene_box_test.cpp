@@ -1,5 +1,6 @@
 // The scene box (nerf/scene_box.h): robust bounds of a sparse map, the cube transform, the first
-// fit, the outgrown test, the re-fit around the map and the old box and the shrunk box.
+// fit, the points near the cameras, the outgrown test, the re-fit around the map and the old box
+// and the shrunk box.
 #include "nerfslam/nerf/scene_box.h"
 
 #include <gtest/gtest.h>
@@ -63,7 +64,10 @@ TEST(SceneBox, FirstFitHoldsTheMapAndIsAtLeastTheCameraBaseline) {
   const std::vector<Eigen::Vector3d> apart = {Eigen::Vector3d(-2, 0, 0), Eigen::Vector3d(1, 0, 0),
                                               Eigen::Vector3d(2, 0, 0)};
   const SceneTransform f = fitSceneBox(flat, apart, 1.0, 1.0);
-  EXPECT_LE(f.scale, 0.5 / 4.0 + 1e-12);  // half side >= |first - last camera| = 4
+  EXPECT_LE(f.scale, 0.5 / 2.0 + 1e-12);  // side >= |first - last camera| = 4
+  // Two cameras 4 apart over a single point: the same.
+  const SceneTransform two = fitSceneBox(flat, {Eigen::Vector3d(-2, 0, 0), Eigen::Vector3d(2, 0, 0)}, 1.0, 1.0);
+  EXPECT_LE(two.scale, 0.5 / 2.0 + 1e-12);
 }
 
 // An object photographed from a ring of cameras three times its size away (the Middlebury temple
@@ -146,6 +150,32 @@ TEST(SceneBox, OversizedWhenTheFinishedMapIsMuchSmallerThanTheFirstBox) {
   SceneTransform larger = fitted;
   larger.scale = fitted.scale * 0.6;
   EXPECT_FALSE(shrunkSceneBox(larger, finished, cams, 1.2, 0.5));
+}
+
+// A camera driving down a street: facades and trees beside the road, and a few points on buildings
+// far ahead. The far points are left out of the box (which the road and its sides fill), and do
+// not make it outgrown; points all around cameras in a room are all kept.
+TEST(SceneBox, FarPointsAheadOfAStreetAreLeftOutOfTheBox) {
+  std::vector<Eigen::Vector3d> cams, pts;
+  for (int i = 0; i <= 20; ++i) cams.emplace_back(0, 0, 0.5 * i);  // 10 units down the road (z)
+  for (int i = 0; i <= 200; ++i)
+    for (const double x : {-1.5, -1.0, 1.0, 1.5}) pts.emplace_back(x, -0.3 * (i % 3), 0.05 * i);
+  const size_t beside = pts.size();
+  for (int i = 0; i < 40; ++i) pts.emplace_back(0.5 * (i % 9) - 2.0, -1.0, 40.0 + 0.5 * i);  // far ahead
+  const std::vector<Eigen::Vector3d> near = pointsNearCameras(pts, cams);
+  EXPECT_EQ(near.size(), beside);
+  const SceneTransform s = fitSceneBox(pts, cams, 1.2, 2.0);
+  // The box's side is the road's length with the margin, not the 60 units to the far points.
+  EXPECT_NEAR(1.0 / s.scale, 1.2 * 10.0, 0.5);
+  for (const auto& c : cams) EXPECT_TRUE(insideUnitCube(s.toNerf(c)));
+  EXPECT_FALSE(insideUnitCube(s.toNerf(pts.back())));
+  EXPECT_FALSE(sceneBoxOutgrown(s, pts, cams, 0.05));
+  EXPECT_FALSE(shrunkSceneBox(s, pts, cams, 1.2, 0.5));
+  // A room: cameras in the middle, points on every wall; all of them count.
+  const std::vector<Eigen::Vector3d> room = gridPoints();
+  EXPECT_EQ(pointsNearCameras(room, {Eigen::Vector3d(0.5, 0.5, 0.5), Eigen::Vector3d(0.4, 0.5, 0.5)}).size(),
+            room.size());
+  EXPECT_EQ(pointsNearCameras(pts, {}).size(), pts.size());
 }
 
 TEST(SceneBox, InsideUnitCubeIncludesItsFaces) {
