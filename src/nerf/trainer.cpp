@@ -272,7 +272,7 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
     const float jt = pick.u01(ts.rng);
     float t_surf = -1.f, surf_weight = 0.f;
     if (plan.depth && !views_[vi].points.empty() && pick.u01(ts.rng) < plan.depth_fraction)
-      t_surf = throughSurfacePoint(views_[vi], step_poses_[vi], ts.rng, &px, &py, &ju, &jv, &surf_weight);
+      t_surf = throughSurfacePoint(vi, ts.rng, &px, &py, &ju, &jv, &surf_weight);
     float bg[3] = {1.f, 1.f, 1.f};
     if (opt_.random_background)
       for (float& b : bg) b = pick.u01(ts.rng);
@@ -326,10 +326,28 @@ int Trainer::marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, 
 }
 
 // A depth-supervised ray: a random surface point of the view that projects into its image sets the
-// pixel (and the sub-pixel offset, so the ray passes through the point); returns the point's
-// NeRF-space distance from the camera, or -1 (the ray stays as drawn) when it does not project.
-float Trainer::throughSurfacePoint(const TrainingView& v, const SE3& T_world_cam, std::mt19937_64& rng, int* px,
-                                   int* py, float* ju, float* jv, float* weight) const {
+// pixel (and the sub-pixel offset, so the ray passes through the point), or, for the
+// depth_triangle_share of them, a random point inside one of the view's depth triangles; returns
+// the NeRF-space distance from the camera to the point (to the triangle's plane), or -1 (the ray
+// stays as drawn) when it does not project.
+float Trainer::throughSurfacePoint(size_t view, std::mt19937_64& rng, int* px, int* py, float* ju, float* jv,
+                                   float* weight) const {
+  const TrainingView& v = views_[view];
+  const SE3& T_world_cam = step_poses_[view];
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  if (!triangles_[view].empty() && u01(rng) < opt_.depth_triangle_share) {
+    const double ua = u01(rng), r1 = u01(rng), r2 = u01(rng);
+    const auto s = sampleDepthTriangle(triangles_[view], v.points, v.camera, T_world_cam, ua, r1, r2);
+    if (!s) return -1.f;
+    const int x = std::clamp(int(std::lround(s->uv.x())), 0, v.camera.width - 1);
+    const int y = std::clamp(int(std::lround(s->uv.y())), 0, v.camera.height - 1);
+    *px = x;
+    *py = y;
+    *ju = float(s->uv.x() - x);
+    *jv = float(s->uv.y() - y);
+    *weight = s->weight;
+    return float(s->distance * model_.scene.scale);
+  }
   const SurfacePoint& sp = v.points[std::uniform_int_distribution<size_t>(0, v.points.size() - 1)(rng)];
   const Eigen::Vector3d p_cam = T_world_cam.inverse() * sp.position.cast<double>();
   Eigen::Vector2d uv;

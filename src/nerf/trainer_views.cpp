@@ -11,6 +11,20 @@
 
 namespace nerfslam::nerf {
 
+namespace {
+
+// The same points, each moved by less than a tenth of its distance from `centre` (bundle
+// adjustment's corrections), in the same order.
+bool samePointsMoved(const std::vector<SurfacePoint>& a, const std::vector<SurfacePoint>& b,
+                     const Eigen::Vector3f& centre) {
+  if (a.size() != b.size()) return false;
+  for (size_t k = 0; k < a.size(); ++k)
+    if (!((a[k].position - b[k].position).norm() <= 0.1f * (a[k].position - centre).norm())) return false;
+  return true;
+}
+
+}  // namespace
+
 void validateView(const TrainingView& view, const std::string& source) {
   view.camera.validate(source);
   const cv::Mat& im = view.image;
@@ -155,6 +169,7 @@ size_t Trainer::addView(TrainingView view) {
     snap_background_.clear();  // the next snapshot takes it
   }
   views_.push_back(std::move(view));
+  triangles_.emplace_back();
   view_loss_.push_back(-1.0);
   if (!view_weights_.empty()) view_weights_.push_back(1.0);
   setViewPoints(views_.size() - 1, std::move(points));
@@ -168,7 +183,21 @@ void Trainer::setViewPoints(size_t i, std::vector<SurfacePoint> points) {
                                 return !p.position.allFinite() || !(p.weight > 0.f && p.weight <= 1.f);
                               }),
                points.end());
+  // The triangles' corners are indices into the points. The same points moved a little by bundle
+  // adjustment keep them (they are drawn where the corners project at each step, on the plane
+  // through where they are now); any other change of the points makes them anew.
+  const bool same = samePointsMoved(views_[i].points, points, views_[i].T_world_cam.translation().cast<float>());
   views_[i].points = std::move(points);
+  if (opt_.depth_triangle_share <= 0)
+    triangles_[i] = {};
+  else if (!same || triangles_[i].empty())
+    triangles_[i] = triangulateSurfacePoints(views_[i].points, views_[i].camera, views_[i].T_world_cam);
+  else
+    for (DepthTriangle& t : triangles_[i].triangles) {  // the corners' weights may have changed
+      float w = 1.f;
+      for (const uint32_t c : t.corner) w = std::min(w, views_[i].points[c].weight);
+      t.weight = kTriangleWeight * w;
+    }
 }
 
 void Trainer::setViewAppearance(size_t i, const Appearance& a) {

@@ -82,6 +82,11 @@ struct TrainOptions {
   double depth_ray_fraction = 0.25;
   double depth_weight = 0.1;
   double depth_width = 0.03;
+  // This share of those depth-supervised rays is drawn inside triangles between the view's surface
+  // points instead of through the points (depth_triangles.h: Delaunay triangles in the image, kept
+  // where their corners lie at similar depths close together), their target the triangle's plane:
+  // the road and the walls between the keypoints are supervised too.
+  double depth_triangle_share = 0.5;
   // The occupancy cells on a view's lines of sight to its surface points, short of the points by
   // three surface widths, are kept empty (space carving): a sparse map says what is free space.
   bool carve_free_space = true;
@@ -154,6 +159,10 @@ struct TrainOptions {
       check::range(0.0, 100.0));
     v("depth_width", depth_width, "Width of a supervised surface, as a fraction of its distance",
       check::range(1e-4, 1.0));
+    v("depth_triangle_share", depth_triangle_share,
+      "Share of the depth-supervised rays drawn inside triangles between the view's surface points (their plane "
+      "the target; 0: through the points only)",
+      check::range(0.0, 1.0));
     v("carve_free_space", carve_free_space,
       "Keep the occupancy cells between a view and its surface points empty (free space from the sparse map)");
     v("distortion_weight", distortion_weight,

@@ -23,6 +23,7 @@
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/pose.h"
 #include "nerfslam/nerf/appearance.h"
+#include "nerfslam/nerf/depth_triangles.h"
 #include "nerfslam/nerf/model_io.h"
 #include "nerfslam/nerf/nerf_options.h"
 #include "nerfslam/nerf/pose_refine.h"
@@ -179,15 +180,16 @@ class Trainer {
   int marchChunk(ThreadState& ts, const StepPlan& plan, RayPicker& pick, int total, int* attempts, bool* full);
   void forwardChunk(ThreadState& ts, int used);
   void compositeChunk(ThreadState& ts, const StepPlan& plan);
-  float throughSurfacePoint(const TrainingView& v, const SE3& T_world_cam, std::mt19937_64& rng, int* px, int* py,
-                            float* ju, float* jv, float* weight) const;
+  float throughSurfacePoint(size_t view, std::mt19937_64& rng, int* px, int* py, float* ju, float* jv,
+                            float* weight) const;
   double gatherThreads(StepStats* stats);
   bool applyGradients(int64_t rays, StepStats* stats);
 
   NerfModel& model_;
   std::vector<TrainingView> views_;
   std::vector<ImageData> images_;
-  std::vector<double> view_weights_;  // empty: uniform
+  std::vector<DepthTriangles> triangles_;  // per view, over its surface points (depth_triangle_share)
+  std::vector<double> view_weights_;       // empty: uniform
   std::vector<double> view_loss_;
   std::vector<Appearance> appearance_;
   AppearanceOptimizer appearance_opt_;
