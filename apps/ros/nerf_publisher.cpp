@@ -535,6 +535,7 @@ void NerfPublisher::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s) con
     s.addf("nerf psnr recent (dB)", "%.2f", st.psnr_recent);
     s.addf("nerf psnr held-out (dB)", "%.2f", st.psnr_heldout);
     s.add("nerf keyframes dropped", static_cast<uint64_t>(st.keyframes_dropped));
+    s.add("nerf keyframes recovered", static_cast<uint64_t>(st.keyframes_recovered));
     s.add("nerf refits", static_cast<int64_t>(st.refits));
     const uint64_t renders = renders_;
     s.add("nerf renders", renders);

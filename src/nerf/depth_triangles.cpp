@@ -58,8 +58,7 @@ DepthTriangles triangulateSurfacePoints(const std::vector<SurfacePoint>& points,
       w = std::min(w, points[i].weight);
     }
     if (!(zmax <= kTriangleMaxDepthRatio * zmin)) continue;
-    if ((c[0] - c[1]).norm() > max_edge || (c[1] - c[2]).norm() > max_edge || (c[2] - c[0]).norm() > max_edge)
-      continue;
+    if ((c[0] - c[1]).norm() > max_edge || (c[1] - c[2]).norm() > max_edge || (c[2] - c[0]).norm() > max_edge) continue;
     const Eigen::Vector2d e1 = c[1] - c[0], e2 = c[2] - c[0];
     const double area = 0.5 * std::abs(e1.x() * e2.y() - e1.y() * e2.x());
     if (!(area > 0.0)) continue;
@@ -76,10 +75,10 @@ std::optional<TriangleSample> sampleDepthTriangle(const DepthTriangles& triangle
                                                   const SE3& T_world_cam, double u_area, double r1, double r2) {
   if (triangles.empty()) return std::nullopt;
   const double target = std::clamp(u_area, 0.0, 1.0) * triangles.cumulative_area.back();
-  const size_t k = std::min(size_t(std::upper_bound(triangles.cumulative_area.begin(),
-                                                    triangles.cumulative_area.end(), target) -
-                                   triangles.cumulative_area.begin()),
-                            triangles.triangles.size() - 1);
+  const size_t k =
+      std::min(size_t(std::upper_bound(triangles.cumulative_area.begin(), triangles.cumulative_area.end(), target) -
+                      triangles.cumulative_area.begin()),
+               triangles.triangles.size() - 1);
   const DepthTriangle& tri = triangles.triangles[k];
   const SE3 T_cam_world = T_world_cam.inverse();
   Eigen::Vector3d P[3];

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include <spdlog/spdlog.h>
 #include <opencv2/imgproc.hpp>
@@ -81,6 +82,8 @@ void NerfMapping::run() {
         continue;
       }
       drainQueue(false);
+      // Caught up: one keyframe the queue dropped while the thread was behind, per step.
+      if (queue_->empty()) recoverDropped(1);
       if (frozen_) {
         lock.unlock();
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -104,8 +107,34 @@ void NerfMapping::drainQueue(bool wait) {
   stats_.keyframes_dropped = queue_->dropped();
 }
 
+size_t NerfMapping::recoverDropped(size_t max) {
+  const uint64_t dropped = queue_->dropped();
+  if (dropped == recovered_through_ || frozen_) return 0;
+  size_t n = 0;
+  bool complete = true;
+  for (const KeyframeId id : map_.keyframeIds()) {
+    if (offered_.count(id)) continue;
+    if (n >= max) {
+      complete = false;
+      break;
+    }
+    const auto kf = map_.keyframe(id);
+    if (!kf || !kf->frame) continue;  // culled meanwhile
+    addKeyframe({kf->id, kf->T_world_cam, kf->frame});
+    ++n;
+  }
+  if (complete) recovered_through_ = dropped;
+  if (n > 0) {
+    std::lock_guard<std::mutex> s(stats_mutex_);
+    stats_.keyframes_recovered += n;
+  }
+  return n;
+}
+
 void NerfMapping::addKeyframe(const KeyframeEvent& ev) {
   if (!ev.frame) return;
+  // Once each: a keyframe recovered from the map may still have been on its way through the queue.
+  if (!offered_.insert(ev.id).second) return;
   if (opt_.holdout_every > 0 && ++keyframes_seen_ % opt_.holdout_every == 0) {
     if (opt_.heldout_interval_s > 0) keepHeldout(ev);
     std::lock_guard<std::mutex> s(stats_mutex_);
@@ -488,6 +517,8 @@ void NerfMapping::resume(const std::filesystem::path& model_file, bool train) {
 int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const std::function<bool()>& stop) {
   auto lock = lockModel();
   if (!trainer_ || frozen_ || (seconds <= 0 && steps <= 0)) return 0;
+  drainQueue(false);
+  recoverDropped(std::numeric_limits<size_t>::max());
   refreshPoses();
   if (!trainer_) return 0;
   // The map is complete: fit the box to it now, not refit_check_steps into the training.

@@ -273,6 +273,7 @@ void reportNerfStats(const NerfMappingStats& st, nlohmann::json& rep) {
   rep["nerf_refits"] = st.refits;
   rep["nerf_views"] = st.views;
   rep["nerf_keyframes_dropped"] = st.keyframes_dropped;
+  rep["nerf_keyframes_recovered"] = st.keyframes_recovered;
   rep["nerf_keyframes_skipped"] = st.keyframes_skipped;
   rep["nerf_keyframes_held_out"] = st.keyframes_held_out;
   if (st.pose_refinement.steps > 0)

@@ -63,7 +63,8 @@ TEST(DepthTriangles, NeverBridgeADepthJumpOrAWideGap) {
   std::uniform_real_distribution<double> u(0, 1);
   // A pole 5 ahead in front of a wall 20 ahead (four times as far), and a second wall patch far to
   // the right of the first in the image, at the same depth but 40 % of the image away.
-  for (int i = 0; i < 150; ++i) pts.push_back({Eigen::Vector3f(float(-0.1 + 0.2 * u(rng)), float(-1 + 2 * u(rng)), 5.f)});
+  for (int i = 0; i < 150; ++i)
+    pts.push_back({Eigen::Vector3f(float(-0.1 + 0.2 * u(rng)), float(-1 + 2 * u(rng)), 5.f)});
   for (int i = 0; i < 300; ++i) pts.push_back({Eigen::Vector3f(float(-8 + 7 * u(rng)), float(-4 + 8 * u(rng)), 20.f)});
   for (int i = 0; i < 100; ++i) pts.push_back({Eigen::Vector3f(float(8 + 4 * u(rng)), float(-4 + 8 * u(rng)), 20.f)});
   const DepthTriangles tris = triangulateSurfacePoints(pts, cam, T);

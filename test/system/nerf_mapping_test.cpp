@@ -289,6 +289,35 @@ TEST(NerfMapping, NeverBlocksThePublisherAndCountsDrops) {
   EXPECT_EQ(nm.stats().views, 2);
 }
 
+// Keyframes the queue dropped while the NeRF thread was behind are still in the map: they become
+// views once the thread has caught up (one per step), or before the final training at the latest.
+TEST(NerfMapping, KeyframesTheQueueDroppedBecomeViewsOnceItCatchesUp) {
+  Fixture fx(6);
+  NerfMappingOptions o = testOptions();
+  o.keyframe_queue = 2;
+  {
+    NerfMapping nm(*fx.map, fx.bus, o);  // not started: the queue keeps the newest two
+    for (const auto& ev : fx.events) fx.bus.publish(ev);
+    nm.stop();
+    EXPECT_EQ(nm.stats().keyframes_dropped, 4u);
+    EXPECT_EQ(nm.stats().views, 2);
+    EXPECT_EQ(nm.trainFor(0, 3), 3);  // the final training takes the dropped ones first
+    EXPECT_EQ(nm.stats().views, 6);
+    EXPECT_EQ(nm.stats().keyframes_recovered, 4u);
+    std::vector<KeyframeId> ids = nm.viewKeyframes();
+    std::sort(ids.begin(), ids.end());
+    EXPECT_EQ(ids, fx.map->keyframeIds());
+  }
+  {
+    NerfMapping nm(*fx.map, fx.bus, o);
+    nm.start();
+    for (const auto& ev : fx.events) fx.bus.publish(ev);  // faster than a view is made
+    ASSERT_TRUE(waitFor([&] { return nm.stats().views == 6; }, 120)) << "views " << nm.stats().views;
+    nm.stop();
+    EXPECT_EQ(nm.stats().keyframes_recovered, nm.stats().keyframes_dropped);
+  }
+}
+
 TEST(NerfMapping, StartsAgainWhenTheSparseMapIsReset) {
   Fixture fx(4);
   NerfMapping nm(*fx.map, fx.bus, testOptions());

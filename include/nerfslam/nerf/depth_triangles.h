@@ -51,8 +51,8 @@ DepthTriangles triangulateSurfacePoints(const std::vector<SurfacePoint>& points,
                                         const SE3& T_world_cam);
 
 struct TriangleSample {
-  Eigen::Vector2d uv;      // the pixel (OpenCV convention, continuous)
-  double distance = 0;     // world distance from the camera centre to the triangle's plane along the pixel's ray
+  Eigen::Vector2d uv;   // the pixel (OpenCV convention, continuous)
+  double distance = 0;  // world distance from the camera centre to the triangle's plane along the pixel's ray
   float weight = 0.f;
 };
 

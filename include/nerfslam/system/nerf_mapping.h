@@ -36,6 +36,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -258,7 +259,10 @@ struct NerfMappingStats {
   int64_t rollbacks = 0;
   int64_t refits = 0;
   int views = 0;
-  uint64_t keyframes_dropped = 0;   // by the bounded input queue
+  uint64_t keyframes_dropped = 0;  // by the bounded input queue
+  // Of those, taken from the map once the thread had caught up (the queue empty) or before the
+  // final training: a dropped keyframe still in the map becomes a view after all.
+  uint64_t keyframes_recovered = 0;
   uint64_t keyframes_skipped = 0;   // too close to an existing view
   uint64_t keyframes_held_out = 0;  // holdout_every
   double train_seconds = 0;         // wall time inside training steps
@@ -354,6 +358,9 @@ class NerfMapping {
 
   void run();
   void drainQueue(bool wait);
+  // Offers the map's keyframes that the queue dropped (those never offered, oldest first), at most
+  // `max` of them; returns how many. Cheap when nothing was dropped since the last complete pass.
+  size_t recoverDropped(size_t max);
   void addKeyframe(const KeyframeEvent& ev);
   void createModel();
   bool isNewView(const SE3& pose, double median_depth) const;
@@ -402,7 +409,9 @@ class NerfMapping {
   uint64_t seen_map_version_ = 0;
   int64_t since_refit_check_ = 0;
   int64_t keyframes_seen_ = 0;
-  int64_t step_offset_ = 0;  // steps of trainers replaced by refits
+  std::set<KeyframeId> offered_;    // every keyframe addKeyframe was given (once each)
+  uint64_t recovered_through_ = 0;  // the queue's drop count when a pass last found none left
+  int64_t step_offset_ = 0;         // steps of trainers replaced by refits
   // Training the current field had before its trainer: a loaded model's steps, or the old field's
   // when a refit distilled it (0 when it started afresh).
   int64_t field_steps_before_ = 0;
