@@ -24,7 +24,18 @@ struct RunArgs {
   std::string save_map;
   std::string odometry;
   std::string image_topic, camera_info_topic, odometry_topic, groundtruth_topic;
+  std::vector<std::string> odometry_frames, groundtruth_frames;
 };
+
+// Two frame names, "A,B" (CLI11 splits the value at the comma).
+CLI::Validator twoFrames(const char* names) {
+  return CLI::Validator(
+      [names](std::string& s) -> std::string {
+        if (s.empty()) return std::string("an empty frame name: expected ") + names;
+        return {};
+      },
+      names);
+}
 
 nerfslam::cli::Registrar reg(
     "run", "Run monocular SLAM over a dataset; writes trajectory, keyframes, map points and report.json",
@@ -67,6 +78,21 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--groundtruth-topic", a->groundtruth_topic,
                      "bag: ground truth, geometry_msgs/PoseStamped or nav_msgs/Odometry of the camera (default: "
                      "/groundtruth when present)");
+      sub.add_option("--odometry-frames", a->odometry_frames,
+                     "bag: the odometry from tf (/tf, /tf_static): the pose of BASE in ODOM, chained through the "
+                     "frames between them (default: odom,base_link when the bag's tf has both and no "
+                     "nav_msgs/Odometry topic was chosen or detected; given, it is used instead of such a topic)")
+          ->delimiter(',')
+          ->expected(2)
+          ->check(twoFrames("ODOM,BASE"))
+          ->type_name("ODOM,BASE");
+      sub.add_option("--groundtruth-frames", a->groundtruth_frames,
+                     "bag: ground truth from tf, the pose of CAMERA (its optical frame, OpenCV axes) in WORLD "
+                     "(default: none; given, it is used instead of a /groundtruth topic)")
+          ->delimiter(',')
+          ->expected(2)
+          ->check(twoFrames("WORLD,CAMERA"))
+          ->type_name("WORLD,CAMERA");
       sub.add_option("--save-map", a->save_map,
                      "Save the map folder here at the end (default: OUT/map, except after --localize)");
       return [a]() -> int {
@@ -91,6 +117,14 @@ nerfslam::cli::Registrar reg(
         o.camera_info_topic = a->camera_info_topic;
         o.odometry_topic = a->odometry_topic;
         o.groundtruth_topic = a->groundtruth_topic;
+        if (!a->odometry_frames.empty()) {
+          o.odom_frame = a->odometry_frames.at(0);
+          o.base_frame = a->odometry_frames.at(1);
+        }
+        if (!a->groundtruth_frames.empty()) {
+          o.groundtruth_parent_frame = a->groundtruth_frames.at(0);
+          o.groundtruth_child_frame = a->groundtruth_frames.at(1);
+        }
         // Ctrl-C / SIGTERM: stop reading and write what exists (core/stop_signal.h).
         nerfslam::installStopHandlers();
         const nerfslam::RunResult r = nerfslam::runSlam(o);

@@ -75,13 +75,19 @@ std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   dopt.camera_info_topic = ro.camera_info_topic;
   dopt.odometry_topic = ro.odometry_topic;
   dopt.groundtruth_topic = ro.groundtruth_topic;
+  dopt.odom_frame = ro.odom_frame;
+  dopt.base_frame = ro.base_frame;
+  dopt.groundtruth_parent_frame = ro.groundtruth_parent_frame;
+  dopt.groundtruth_child_frame = ro.groundtruth_child_frame;
   return openDataset(spec, dopt);
 }
 
 // --odometry: the file read and checked (odometry.h), and its overlap with the frames' timestamps.
-std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const SystemOptions& sys,
-                                                     const Dataset& ds) {
+// *from: where the odometry came from ("file", or the dataset's: "topic", "tf").
+std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const SystemOptions& sys, const Dataset& ds,
+                                                     std::string* from) {
   std::shared_ptr<const OdometryTrack> odo;
+  *from = "file";
   if (ro.odometry) {
     if (ro.map) fail("run: --odometry with --map is not supported (the map keeps the scale it was saved with)");
     odo = std::make_shared<const OdometryTrack>(OdometryTrack::load(*ro.odometry, sys.odometry));
@@ -96,6 +102,7 @@ std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const
     }
     odo = std::make_shared<const OdometryTrack>(
         std::move(own->T_odom_base), rigidTransformFromRowMajor(sys.odometry.T_base_cam), own->source, sys.odometry);
+    *from = own->from;
   } else {
     return nullptr;
   }
@@ -106,19 +113,21 @@ std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const
          odo->source(), numberForMessage(odo->beginTime(), 3), numberForMessage(odo->endTime(), 3),
          numberForMessage(ds.size() ? ds.timestamp(0) : 0.0, 3),
          numberForMessage(ds.size() ? ds.timestamp(ds.size() - 1) : 0.0, 3));
-  spdlog::info("odometry {}: {} samples, {:.3f} .. {:.3f} s, {}/{} frames covered", odo->source(), odo->size(),
-               odo->beginTime(), odo->endTime(), covered, ds.size());
+  spdlog::info("odometry from {} {}: {} samples, {:.3f} .. {:.3f} s, {}/{} frames covered", *from, odo->source(),
+               odo->size(), odo->beginTime(), odo->endTime(), covered, ds.size());
   return odo;
 }
 
 // scale_source ("odometry" once the odometry's scale was applied, else "none": a monocular map's
-// scale is arbitrary) and, with odometry, the scale over time (SlamSystem::scaleHistory).
-void addScaleReport(SlamSystem& slam, nlohmann::json& rep) {
+// scale is arbitrary) and, with odometry, where it came from (`from`: "file", a bag's "topic" or
+// "tf") and the scale over time (SlamSystem::scaleHistory).
+void addScaleReport(SlamSystem& slam, const std::string& odometry_from, nlohmann::json& rep) {
   rep["scale_source"] = slam.metricScale() ? "odometry" : "none";
   const OdometryTrack* odo = slam.odometry();
   if (!odo) return;
   nlohmann::json j;
   j["file"] = odo->source();
+  j["from"] = odometry_from;
   j["samples"] = odo->size();
   j["scale_applied_at_frame"] = slam.scaleAppliedAtFrame();
   nlohmann::json over = nlohmann::json::array();
@@ -728,7 +737,8 @@ RunResult runSlam(const RunOptions& ro) {
   const SystemOptions sys = loadRunOptions(ro);
   const std::unique_ptr<Dataset> ds = openRunDataset(ro);
   refuseOutputsInDataset(ro, *ds);
-  const std::shared_ptr<const OdometryTrack> odometry = openRunOdometry(ro, sys, *ds);
+  std::string odometry_from;
+  const std::shared_ptr<const OdometryTrack> odometry = openRunOdometry(ro, sys, *ds, &odometry_from);
   ensureDirectory(ro.out);
   const Camera& camera = ds->camera();
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
@@ -787,7 +797,7 @@ RunResult runSlam(const RunOptions& ro) {
     rep["skipped"] = skipped;
   }
   const GroundTruthEval ge = evaluateAgainstGroundTruth(*ds, traj, rep);
-  addScaleReport(slam, rep);
+  addScaleReport(slam, odometry_from, rep);
   writeRunFiles(slam, *ds, traj, ge, ro.out, eval_options, rep);
   const bool map_save_failed = saveRunMap(slam, ro, camera, sys, rep);
   addRunOutput(rep, "report.json");

@@ -45,11 +45,14 @@ struct RunOptions {
   // A dataset's own odometry (a bag's nav_msgs/Odometry topic, Dataset::odometry()) is used the
   // same way when `odometry` is not given (the file wins; not with `map`).
   std::optional<std::filesystem::path> odometry;
-  // A bag's topics (DatasetOptions::image_topic ...; empty: detected).
+  // A bag's topics (DatasetOptions::image_topic ...; empty: detected) and tf frames
+  // (DatasetOptions::odom_frame ...: the odometry, or the ground truth, from tf).
   std::string image_topic;
   std::string camera_info_topic;
   std::string odometry_topic;
   std::string groundtruth_topic;
+  std::string odom_frame, base_frame;
+  std::string groundtruth_parent_frame, groundtruth_child_frame;
 };
 
 struct RunResult {
