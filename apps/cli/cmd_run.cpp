@@ -42,14 +42,17 @@ nerfslam::cli::Registrar reg(
     [](CLI::App& sub) -> nerfslam::cli::Runner {
       auto a = std::make_shared<RunArgs>();
       sub.add_option("--dataset", a->dataset,
-                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video bag); "
-                     "without it: the demo on a synthetic room rendered into OUT/sequence");
+                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video bag), "
+                     "or camera:/dev/videoN (camera:N) for a live camera (needs --camera; implies --realtime; its "
+                     "frames are recorded in OUT/frames, a folder dataset); without it: the demo on a synthetic room "
+                     "rendered into OUT/sequence");
       sub.add_option("--demo-frames", a->demo_frames, "Frames of the demo sequence (without --dataset)")
           ->check(CLI::Range(30, 100000));
       sub.add_option("--camera", a->camera, "Camera YAML replacing the dataset's calibration");
       sub.add_option("--config", a->config, "Options YAML (see `nerfslam options`)");
       sub.add_option("--out", a->out, "Output directory")->required();
-      sub.add_option("--max-frames", a->max_frames, "Use at most N frames (0: all)");
+      sub.add_option("--max-frames", a->max_frames,
+                     "Use at most N frames (0: all; a camera: stop once N frames reached tracking, else at Ctrl-C)");
       sub.add_option("--fps", a->fps,
                      "Frame rate giving the timestamps of a dataset without them (an image folder without "
                      "times.txt; 0: the dataset's own)")

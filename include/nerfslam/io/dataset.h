@@ -42,6 +42,8 @@
 //               base_link, chained), ground truth from a geometry_msgs/PoseStamped or
 //               nav_msgs/Odometry topic (or tf frames named in the options) when present; every
 //               image message's header (encoding, size, stamp) is checked at open
+// A live camera (`camera:/dev/videoN`) is a stream, not a Dataset: io/frame_stream.h (FrameStream,
+// and StreamRecording, the Dataset of the frames a run recorded from it).
 // Views without capture times (transforms without "timestamp", middlebury, strecha) get
 // index / 30 s (or index / DatasetOptions::fps).
 #include <cstddef>
