@@ -27,14 +27,15 @@ struct RunArgs {
   std::vector<std::string> odometry_frames, groundtruth_frames;
 };
 
-// Two frame names, "A,B" (CLI11 splits the value at the comma).
+// Two frame names, "A,B" (CLI11 splits the value at the comma). No description of its own: the
+// option's type name says A,B.
 CLI::Validator twoFrames(const char* names) {
   return CLI::Validator(
       [names](std::string& s) -> std::string {
         if (s.empty()) return std::string("an empty frame name: expected ") + names;
         return {};
       },
-      names);
+      "");
 }
 
 nerfslam::cli::Registrar reg(

@@ -118,8 +118,8 @@ class VideoFileStream : public FrameStream {
         start_ = Clock::now();
         t0_ = f.timestamp;
       }
-      std::this_thread::sleep_until(start_ + std::chrono::duration_cast<Clock::duration>(
-                                                 std::chrono::duration<double>(f.timestamp - t0_)));
+      std::this_thread::sleep_until(
+          start_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(f.timestamp - t0_)));
     }
     ++frames_;
     return true;
@@ -150,9 +150,10 @@ StreamRecording::StreamRecording(std::string device, fs::path folder, const Came
     : device_(std::move(device)), folder_(std::move(folder)), camera_(camera) {
   std::error_code ec;
   if (fs::exists(folder_, ec) && !fs::is_empty(folder_, ec))
-    fail("{}: the folder for the camera's frames already holds files (an earlier run's?): choose another --out, or "
-         "move it away",
-         folder_.string());
+    fail(
+        "{}: the folder for the camera's frames already holds files (an earlier run's?): choose another --out, or "
+        "move it away",
+        folder_.string());
   ensureDirectory(folder_);
   std::ifstream in(camera_yaml, std::ios::binary);
   std::stringstream yaml;

@@ -250,8 +250,8 @@ TEST(CameraRun, MaxFramesAndStopRequestEndTheStreamWithItsOutputs) {
   EXPECT_EQ(rs.report.at("frames").get<int>(), 41);  // frame 40 was read before the request was seen
   EXPECT_EQ(rs.report.at("interrupted_at_frame").get<int>(), 41);
   EXPECT_TRUE(fs::exists(s->dir / "stop_out" / "trajectory.txt"));
-  const RunResult rr = runSlam(options("folder:" + (s->dir / "stop_out" / "frames").string(), s->dir / "replay_out",
-                                       s->camera));
+  const RunResult rr =
+      runSlam(options("folder:" + (s->dir / "stop_out" / "frames").string(), s->dir / "replay_out", s->camera));
   ASSERT_EQ(rr.exit_code, 0);
   EXPECT_EQ(rr.report.at("frames").get<int>(), 41);
   EXPECT_EQ(readFile(s->dir / "replay_out" / "trajectory.txt"), readFile(s->dir / "stop_out" / "trajectory.txt"));
