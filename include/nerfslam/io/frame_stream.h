@@ -53,8 +53,9 @@ std::string cameraDevice(const std::string& spec);
 // calibration's; the frames are checked by the caller). Timestamps: the driver's buffer time
 // (CAP_PROP_POS_MSEC, the kernel's monotonic clock) when it gives one, else the steady clock when
 // the frame is returned. read() fails, naming the device and the seconds waited, when the device
-// stops delivering (OpenCV's V4L2 wait for a frame is 10 s, OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT) or
-// errs. Throws an Error naming the device when it does not exist or does not open.
+// stops delivering (OpenCV's V4L2 read waits 10 s for a frame; the environment's
+// OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT changes that) or errs. Throws an Error naming the device when it does not exist or
+// does not open.
 std::unique_ptr<FrameStream> openCameraStream(const std::string& device, int width, int height);
 
 // A video file played as a camera through the same VideoCapture path (CAP_FFMPEG): timestamps from
