@@ -29,7 +29,7 @@ ROS_PKGS=(
   python3-gencpp python3-genmsg python3-genpy
   python3-rostopic python3-sensor-msgs python3-geometry-msgs python3-nav-msgs python3-visualization-msgs python3-tf2-msgs
   rosbash
-  librosbag-storage-dev
+  librosbag-storage-dev libtf2-msgs-dev
 )
 
 pkgs=("${BUILD_PKGS[@]}")

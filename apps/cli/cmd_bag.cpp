@@ -36,6 +36,9 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--jpeg-quality", a->w.jpeg_quality, "JPEG quality (--encoding jpeg)")->check(CLI::Range(1, 100));
       sub.add_option("--odometry", a->odometry,
                      "A TUM odometry file (T_odom_base, e.g. synth's odometry.txt) written as nav_msgs/Odometry");
+      sub.add_option("--odometry-as", a->w.odometry_as,
+                     "How --odometry is written: topic (nav_msgs/Odometry), tf (/tf, odom -> base_link) or both")
+          ->check(CLI::IsMember({"topic", "tf", "both"}));
       sub.add_option("--image-topic", a->w.image_topic, "Image topic");
       sub.add_option("--camera-info-topic", a->w.camera_info_topic, "CameraInfo topic");
       sub.add_option("--odometry-topic", a->w.odometry_topic, "Odometry topic");
@@ -57,7 +60,7 @@ nerfslam::cli::Registrar reg(
         nerfslam::writeDatasetBag(*ds, a->out, w);
         std::fprintf(stderr, "wrote %s: %zu frames on %s (%s)%s%s\n", a->out.c_str(), ds->size(), w.image_topic.c_str(),
                      w.encoding.c_str(), ds->hasGroundTruth() && w.groundtruth ? ", ground truth" : "",
-                     w.odometry ? ", odometry" : "");
+                     w.odometry ? (", odometry as " + w.odometry_as).c_str() : "");
         return 0;
       };
     });

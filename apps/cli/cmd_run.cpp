@@ -24,21 +24,36 @@ struct RunArgs {
   std::string save_map;
   std::string odometry;
   std::string image_topic, camera_info_topic, odometry_topic, groundtruth_topic;
+  std::vector<std::string> odometry_frames, groundtruth_frames;
 };
+
+// Two frame names, "A,B" (CLI11 splits the value at the comma). No description of its own: the
+// option's type name says A,B.
+CLI::Validator twoFrames(const char* names) {
+  return CLI::Validator(
+      [names](std::string& s) -> std::string {
+        if (s.empty()) return std::string("an empty frame name: expected ") + names;
+        return {};
+      },
+      "");
+}
 
 nerfslam::cli::Registrar reg(
     "run", "Run monocular SLAM over a dataset; writes trajectory, keyframes, map points and report.json",
     [](CLI::App& sub) -> nerfslam::cli::Runner {
       auto a = std::make_shared<RunArgs>();
       sub.add_option("--dataset", a->dataset,
-                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video bag); "
-                     "without it: the demo on a synthetic room rendered into OUT/sequence");
+                     "[kind:]PATH (kinds: folder tum euroc kitti transforms middlebury strecha tsukuba video bag), "
+                     "or camera:/dev/videoN (camera:N) for a live camera (needs --camera; implies --realtime; its "
+                     "frames are recorded in OUT/frames, a folder dataset); without it: the demo on a synthetic room "
+                     "rendered into OUT/sequence");
       sub.add_option("--demo-frames", a->demo_frames, "Frames of the demo sequence (without --dataset)")
           ->check(CLI::Range(30, 100000));
       sub.add_option("--camera", a->camera, "Camera YAML replacing the dataset's calibration");
       sub.add_option("--config", a->config, "Options YAML (see `nerfslam options`)");
       sub.add_option("--out", a->out, "Output directory")->required();
-      sub.add_option("--max-frames", a->max_frames, "Use at most N frames (0: all)");
+      sub.add_option("--max-frames", a->max_frames,
+                     "Use at most N frames (0: all; a camera: stop once N frames reached tracking, else at Ctrl-C)");
       sub.add_option("--fps", a->fps,
                      "Frame rate giving the timestamps of a dataset without them (an image folder without "
                      "times.txt; 0: the dataset's own)")
@@ -67,6 +82,21 @@ nerfslam::cli::Registrar reg(
       sub.add_option("--groundtruth-topic", a->groundtruth_topic,
                      "bag: ground truth, geometry_msgs/PoseStamped or nav_msgs/Odometry of the camera (default: "
                      "/groundtruth when present)");
+      sub.add_option("--odometry-frames", a->odometry_frames,
+                     "bag: the odometry from tf (/tf, /tf_static): the pose of BASE in ODOM, chained through the "
+                     "frames between them (default: odom,base_link when the bag's tf has both and no "
+                     "nav_msgs/Odometry topic was chosen or detected; given, it is used instead of such a topic)")
+          ->delimiter(',')
+          ->expected(2)
+          ->check(twoFrames("ODOM,BASE"))
+          ->type_name("ODOM,BASE");
+      sub.add_option("--groundtruth-frames", a->groundtruth_frames,
+                     "bag: ground truth from tf, the pose of CAMERA (its optical frame, OpenCV axes) in WORLD "
+                     "(default: none; given, it is used instead of a /groundtruth topic)")
+          ->delimiter(',')
+          ->expected(2)
+          ->check(twoFrames("WORLD,CAMERA"))
+          ->type_name("WORLD,CAMERA");
       sub.add_option("--save-map", a->save_map,
                      "Save the map folder here at the end (default: OUT/map, except after --localize)");
       return [a]() -> int {
@@ -91,6 +121,14 @@ nerfslam::cli::Registrar reg(
         o.camera_info_topic = a->camera_info_topic;
         o.odometry_topic = a->odometry_topic;
         o.groundtruth_topic = a->groundtruth_topic;
+        if (!a->odometry_frames.empty()) {
+          o.odom_frame = a->odometry_frames.at(0);
+          o.base_frame = a->odometry_frames.at(1);
+        }
+        if (!a->groundtruth_frames.empty()) {
+          o.groundtruth_parent_frame = a->groundtruth_frames.at(0);
+          o.groundtruth_child_frame = a->groundtruth_frames.at(1);
+        }
         // Ctrl-C / SIGTERM: stop reading and write what exists (core/stop_signal.h).
         nerfslam::installStopHandlers();
         const nerfslam::RunResult r = nerfslam::runSlam(o);

@@ -239,6 +239,11 @@ DatasetSpec parseDatasetSpec(const std::string& spec) {
   if (colon != std::string::npos && colon > 0 && !pathExists(spec)) {
     const std::string kind = spec.substr(0, colon);
     if (std::all_of(kind.begin(), kind.end(), [](unsigned char c) { return std::isalnum(c) || c == '_'; })) {
+      if (kind == "camera")
+        fail(
+            "'{}' is a live camera, a stream of frames: `nerfslam run` reads it (and records its frames as a "
+            "folder dataset), other commands need a dataset",
+            cutForMessage(spec));
       if (std::find(datasetKinds().begin(), datasetKinds().end(), kind) == datasetKinds().end())
         fail("unknown dataset kind '{}' in '{}' (valid kinds: {})", cutForMessage(kind), cutForMessage(spec),
              kindList());

@@ -75,13 +75,19 @@ std::unique_ptr<Dataset> openRunDataset(const RunOptions& ro) {
   dopt.camera_info_topic = ro.camera_info_topic;
   dopt.odometry_topic = ro.odometry_topic;
   dopt.groundtruth_topic = ro.groundtruth_topic;
+  dopt.odom_frame = ro.odom_frame;
+  dopt.base_frame = ro.base_frame;
+  dopt.groundtruth_parent_frame = ro.groundtruth_parent_frame;
+  dopt.groundtruth_child_frame = ro.groundtruth_child_frame;
   return openDataset(spec, dopt);
 }
 
 // --odometry: the file read and checked (odometry.h), and its overlap with the frames' timestamps.
-std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const SystemOptions& sys,
-                                                     const Dataset& ds) {
+// *from: where the odometry came from ("file", or the dataset's: "topic", "tf").
+std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const SystemOptions& sys, const Dataset& ds,
+                                                     std::string* from) {
   std::shared_ptr<const OdometryTrack> odo;
+  *from = "file";
   if (ro.odometry) {
     if (ro.map) fail("run: --odometry with --map is not supported (the map keeps the scale it was saved with)");
     odo = std::make_shared<const OdometryTrack>(OdometryTrack::load(*ro.odometry, sys.odometry));
@@ -96,6 +102,7 @@ std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const
     }
     odo = std::make_shared<const OdometryTrack>(
         std::move(own->T_odom_base), rigidTransformFromRowMajor(sys.odometry.T_base_cam), own->source, sys.odometry);
+    *from = own->from;
   } else {
     return nullptr;
   }
@@ -106,19 +113,21 @@ std::shared_ptr<const OdometryTrack> openRunOdometry(const RunOptions& ro, const
          odo->source(), numberForMessage(odo->beginTime(), 3), numberForMessage(odo->endTime(), 3),
          numberForMessage(ds.size() ? ds.timestamp(0) : 0.0, 3),
          numberForMessage(ds.size() ? ds.timestamp(ds.size() - 1) : 0.0, 3));
-  spdlog::info("odometry {}: {} samples, {:.3f} .. {:.3f} s, {}/{} frames covered", odo->source(), odo->size(),
-               odo->beginTime(), odo->endTime(), covered, ds.size());
+  spdlog::info("odometry from {} {}: {} samples, {:.3f} .. {:.3f} s, {}/{} frames covered", *from, odo->source(),
+               odo->size(), odo->beginTime(), odo->endTime(), covered, ds.size());
   return odo;
 }
 
 // scale_source ("odometry" once the odometry's scale was applied, else "none": a monocular map's
-// scale is arbitrary) and, with odometry, the scale over time (SlamSystem::scaleHistory).
-void addScaleReport(SlamSystem& slam, nlohmann::json& rep) {
+// scale is arbitrary) and, with odometry, where it came from (`from`: "file", a bag's "topic" or
+// "tf") and the scale over time (SlamSystem::scaleHistory).
+void addScaleReport(SlamSystem& slam, const std::string& odometry_from, nlohmann::json& rep) {
   rep["scale_source"] = slam.metricScale() ? "odometry" : "none";
   const OdometryTrack* odo = slam.odometry();
   if (!odo) return;
   nlohmann::json j;
   j["file"] = odo->source();
+  j["from"] = odometry_from;
   j["samples"] = odo->size();
   j["scale_applied_at_frame"] = slam.scaleAppliedAtFrame();
   nlohmann::json over = nlohmann::json::array();
@@ -168,6 +177,31 @@ void refuseOutputsInDataset(const RunOptions& ro, const Dataset& ds) {
   if (ro.save_map) check(*ro.save_map, "--save-map");
 }
 
+// camera:DEVICE (frame_stream.h): the stream (the device, or RunOptions::open_stream's) and the
+// recording of the frames that reach tracking in OUT/frames. A device implies --realtime.
+void openRunStream(RunOptions& ro, std::unique_ptr<FrameStream>* stream, std::unique_ptr<StreamRecording>* rec) {
+  const std::string device = cameraDevice(ro.dataset);
+  if (!ro.camera)
+    fail(
+        "--dataset {}: a live camera has no calibration; give its camera YAML (--camera FILE; `nerfslam calibrate` "
+        "makes one)",
+        ro.dataset);
+  if (ro.odometry)
+    fail(
+        "run: --odometry with a live camera is not supported (the frames' times are the capture clock's, not the "
+        "odometry file's)");
+  Camera camera = loadCameraYaml(*ro.camera);
+  camera.validate(ro.camera->string());
+  if (ro.open_stream) {
+    *stream = ro.open_stream(device);
+  } else {
+    *stream = openCameraStream(device, camera.width, camera.height);
+    if (!ro.realtime) spdlog::info("camera {}: frames are taken at the device's rate (--realtime)", device);
+    ro.realtime = true;
+  }
+  *rec = std::make_unique<StreamRecording>((*stream)->name(), ro.out / "frames", camera, *ro.camera);
+}
+
 // The saved map to start from (map_store.h): verified, and refused when made with another camera.
 // Its size is kept for the report: SlamSystem takes the map.
 struct StartMap {
@@ -207,12 +241,20 @@ struct FramePipe {
   std::atomic<bool> tracking_done{false};    // the tracking thread has left its loop
   // Stopped by a signal (core/stop_signal.h): the index of the first frame not read, -1 otherwise.
   std::atomic<long long> stopped_at_frame{-1};
+  // A camera (readStream): the recording every frame that reaches tracking goes into (the tracking
+  // thread appends it and tracks it under the index it gets), the frames read from the device, and
+  // the tracking thread's word that --max-frames frames were tracked.
+  StreamRecording* recording = nullptr;
+  std::atomic<std::size_t> frames_read{0};
+  std::atomic<bool> enough{false};
   std::string read_failure, tracking_failure;
   // The tracked poses as tracking made them (before the bundle adjustments that follow), appended by
   // the tracking thread and read by the checkpoint writer on the main thread.
   std::mutex live_mutex;
   Trajectory live;
-  std::vector<std::string> image_problems;  // by frame: describeImageProblem() ("" for most)
+  // By frame: describeImageProblem() ("" for most). Written by the reader, by index (a dataset), or
+  // by the tracking thread, appended (a camera).
+  std::vector<std::string> image_problems;
 };
 
 // Mean intensity and a sharpness measure to explain failures ("black", "saturated", "blurred").
@@ -293,6 +335,90 @@ void readFrames(const Dataset& ds, SlamSystem& slam, const RunOptions& ro, const
   pipe.queue.close();
 }
 
+// A stream's 8-bit frame (grey, BGR or BGRA) as BGR (`colour`) or grey.
+cv::Mat convertStreamImage(const cv::Mat& in, bool colour) {
+  cv::Mat out;
+  const int ch = in.channels();
+  if (ch == (colour ? 3 : 1)) return in;
+  if (ch == 1)
+    cv::cvtColor(in, out, cv::COLOR_GRAY2BGR);
+  else if (ch == 3)
+    cv::cvtColor(in, out, cv::COLOR_BGR2GRAY);
+  else
+    cv::cvtColor(in, out, colour ? cv::COLOR_BGRA2BGR : cv::COLOR_BGRA2GRAY);
+  return out;
+}
+
+// The reader thread's loop for a camera: frames as the stream delivers them (no pacing: the device
+// is the clock), each checked against the calibration's size, handed over as readFrames does (with
+// --realtime the queue drops the oldest waiting frame; otherwise, for an injected source, the reader
+// waits for tracking). Ends at a stop request, when the tracking thread has had --max-frames frames,
+// at the end of the stream, or when it fails (read_failure names the device).
+void readStream(FrameStream& stream, const Camera& camera, SlamSystem& slam, const RunOptions& ro,
+                const SystemOptions& sys, FramePipe& pipe, RunStats& stats) {
+  setThreadName("nerfslam-read");
+  const bool lockstep = !ro.realtime && sys.lockstep;
+  double last_ts = -std::numeric_limits<double>::infinity();
+  while (!pipe.aborted && !pipe.enough) {
+    if (stopRequests() > 0) {
+      pipe.stopped_at_frame = static_cast<long long>(pipe.frames_read.load());
+      break;
+    }
+    StreamFrame sf;
+    std::string why;
+    bool ok = false;
+    try {
+      ok = stream.read(sf, why);
+    } catch (const std::exception& e) {
+      why = fmt::format("{}: {}", stream.name(), e.what());
+    }
+    if (!ok) {
+      if (!why.empty()) {
+        pipe.read_failure = why;
+        spdlog::error("{}", why);
+      }
+      break;
+    }
+    const std::size_t n = pipe.frames_read++;
+    const int ch = sf.image.channels();
+    if (sf.image.cols != camera.width || sf.image.rows != camera.height || sf.image.depth() != CV_8U ||
+        (ch != 1 && ch != 3 && ch != 4)) {
+      pipe.read_failure = fmt::format(
+          "{}: frame {} is {}x{} ({} channel(s), depth {}), the camera YAML is for {}x{} 8-bit frames", stream.name(),
+          n, sf.image.cols, sf.image.rows, sf.image.channels(), sf.image.depth(), camera.width, camera.height);
+      spdlog::error("{}", pipe.read_failure);
+      break;
+    }
+    if (!(sf.timestamp > last_ts)) {
+      ++pipe.out_of_order;
+      spdlog::warn("{}: frame {}: timestamp {} not after the previous {}; skipped", stream.name(), n,
+                   numberForMessage(sf.timestamp), numberForMessage(last_ts));
+      continue;
+    }
+    last_ts = sf.timestamp;
+    InputFrame f;
+    f.index = n;  // the tracking thread gives it its index in the recording
+    f.timestamp = sf.timestamp;
+    // Colour for the NeRF (tracking converts to grey itself), else grey, as readFrames loads them.
+    f.image = convertStreamImage(sf.image, sys.nerf.enabled);
+    if (ro.realtime) {
+      pipe.queue.tryPush(std::move(f));  // drops the oldest waiting frame when tracking lags
+      ++pipe.queued;
+    } else {
+      if (!pipe.queue.push(std::move(f))) break;
+      ++pipe.queued;
+      if (lockstep) {
+        while (pipe.processed.load() < pipe.queued.load() && !pipe.aborted && !pipe.enough)
+          std::this_thread::sleep_for(std::chrono::microseconds(200));
+        slam.waitMappingIdle();
+      }
+    }
+    if (pipe.queued.load() % RunStats::kWindow == 0)
+      stats.addWindowSample({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
+  }
+  pipe.queue.close();
+}
+
 // ---- The system: tracking on the tracking thread (mapping and the NeRF run on SlamSystem's own).
 
 // The progress line on stderr.
@@ -304,7 +430,9 @@ void printProgress(SlamSystem& slam, std::size_t index, std::size_t frames, std:
                             ns.steps, ns.steps_per_second, ns.samples_per_second / 1e6, ns.psnr_recent);
     if (ns.psnr_heldout > 0) nerf_line += fmt::format(" (held-out {:.1f} dB)", ns.psnr_heldout);
   }
-  std::fprintf(stderr, "frame %zu/%zu  %.1f frames/s  keyframes %zu  map points %zu  %s%s\n", index + 1, frames,
+  // frames 0: a camera, no total.
+  const std::string total = frames > 0 ? fmt::format("/{}", frames) : "";
+  std::fprintf(stderr, "frame %zu%s  %.1f frames/s  keyframes %zu  map points %zu  %s%s\n", index + 1, total.c_str(),
                processed / std::max(secs, 1e-9), slam.map().numKeyframes(), slam.map().numPoints(),
                toString(slam.state()), nerf_line.c_str());
 }
@@ -317,6 +445,10 @@ void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clo
   auto last_print = Clock::now();
   while (auto f = pipe.queue.pop()) {
     try {
+      if (pipe.recording) {  // a camera: the frame reaches tracking, so it is recorded, under its index there
+        f->index = pipe.recording->append(f->timestamp, f->image);
+        pipe.image_problems.push_back(describeFrameProblem(f->image));
+      }
       const bool had_map = slam.initialized();
       const FrameRecord rec = slam.trackFrame(f->image, f->timestamp, f->index);
       stats.addFrame(rec, had_map);
@@ -337,6 +469,11 @@ void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clo
       last_print = Clock::now();
       printProgress(slam, f->index, frames, pipe.processed.load(),
                     std::chrono::duration<double>(Clock::now() - run0).count());
+    }
+    if (pipe.recording && ro.max_frames > 0 && pipe.processed.load() >= ro.max_frames) {
+      pipe.enough = true;  // the frames still queued never reach tracking
+      pipe.queue.close();
+      break;
     }
   }
 }
@@ -724,11 +861,22 @@ void writeMapPly(const std::filesystem::path& path, const Map& map) {
   });
 }
 
-RunResult runSlam(const RunOptions& ro) {
+RunResult runSlam(const RunOptions& options) {
+  RunOptions ro = options;  // a camera implies realtime
   const SystemOptions sys = loadRunOptions(ro);
-  const std::unique_ptr<Dataset> ds = openRunDataset(ro);
-  refuseOutputsInDataset(ro, *ds);
-  const std::shared_ptr<const OdometryTrack> odometry = openRunOdometry(ro, sys, *ds);
+  // A dataset, or a camera's stream and the recording of its frames (the dataset of the outputs).
+  std::unique_ptr<FrameStream> stream;
+  std::unique_ptr<StreamRecording> recording;
+  std::unique_ptr<Dataset> dataset;
+  if (isCameraSpec(ro.dataset)) {
+    openRunStream(ro, &stream, &recording);
+  } else {
+    dataset = openRunDataset(ro);
+    refuseOutputsInDataset(ro, *dataset);
+  }
+  const Dataset* ds = recording ? static_cast<const Dataset*>(recording.get()) : dataset.get();
+  std::string odometry_from;
+  const std::shared_ptr<const OdometryTrack> odometry = openRunOdometry(ro, sys, *ds, &odometry_from);
   ensureDirectory(ro.out);
   const Camera& camera = ds->camera();
   spdlog::info("dataset {} ({}), {} frames, camera {}", ds->root().string(), ds->kind(), ds->size(), camera.describe());
@@ -740,11 +888,17 @@ RunResult runSlam(const RunOptions& ro) {
 
   // Reading and the system: the reader thread feeds the tracking thread.
   FramePipe pipe(sys, ro, ds->size());
+  pipe.recording = recording.get();
   RunStats stats;
-  std::thread reader([&] { readFrames(*ds, slam, ro, sys, pipe, stats); });
+  std::thread reader([&] {
+    if (stream)
+      readStream(*stream, camera, slam, ro, sys, pipe, stats);
+    else
+      readFrames(*ds, slam, ro, sys, pipe, stats);
+  });
   const auto run0 = Clock::now();
   std::thread tracker([&] {
-    trackFrames(slam, ro, ds->size(), run0, pipe, stats);
+    trackFrames(slam, ro, stream ? 0 : ds->size(), run0, pipe, stats);
     pipe.tracking_done = true;
   });
   // The main thread keeps trajectory.txt and report.json up to date meanwhile.
@@ -756,6 +910,14 @@ RunResult runSlam(const RunOptions& ro) {
   reader.join();
   tracker.join();
   const double wall_s = std::chrono::duration<double>(Clock::now() - run0).count();
+  if (recording) {  // every recorded frame on disk before the outputs read them
+    try {
+      recording->flush();
+    } catch (const std::exception& e) {
+      if (pipe.read_failure.empty()) pipe.read_failure = e.what();
+      spdlog::error("{}", e.what());
+    }
+  }
   // Stopped by a signal (core/stop_signal.h): a second one skips what only improves the result.
   std::vector<std::string> skipped;
   const bool global_ba = stopRequests() < 2;
@@ -786,8 +948,15 @@ RunResult runSlam(const RunOptions& ro) {
         pipe.stopped_at_frame >= 0 ? nlohmann::json(pipe.stopped_at_frame.load()) : nlohmann::json(nullptr);
     rep["skipped"] = skipped;
   }
+  if (recording) {
+    rep["camera"] = {{"device", stream->name()},
+                     {"frames_read", pipe.frames_read.load()},
+                     {"frames_recorded", recording->size()},
+                     {"recorded_to", recording->folder().string()}};
+    addRunOutput(rep, "frames/");
+  }
   const GroundTruthEval ge = evaluateAgainstGroundTruth(*ds, traj, rep);
-  addScaleReport(slam, rep);
+  addScaleReport(slam, odometry_from, rep);
   writeRunFiles(slam, *ds, traj, ge, ro.out, eval_options, rep);
   const bool map_save_failed = saveRunMap(slam, ro, camera, sys, rep);
   addRunOutput(rep, "report.json");

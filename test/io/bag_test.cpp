@@ -15,6 +15,10 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+#if __has_include(<tf/tfMessage.h>)
+#include <tf/tfMessage.h>
+#endif
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -85,6 +89,12 @@ fs::path writeBag(const fs::path& path, const BagSpec& s) {
     }
   }
   return path;
+}
+
+// A stamp as the bag reader gives it back: ros::Time(t) keeps whole nanoseconds.
+double fromRosTimeForTest(double t) {
+  const ros::Time r(t);
+  return std::stod(fmt::format("{}.{:09d}", r.sec, r.nsec));
 }
 
 std::unique_ptr<Dataset> open(const fs::path& bag, DatasetOptions o = {}) {
@@ -161,6 +171,33 @@ TEST(BagDataset, WrittenDatasetReadsBackExactly) {
       EXPECT_EQ(bag_odo[k].pose.translation(), file[k].pose.translation()) << k;
       EXPECT_EQ(bag_odo[k].pose.rotation().coeffs(), file[k].pose.rotation().coeffs()) << k;
     }
+  }
+  // The odometry written as tf (odom -> base_link on /tf) reads back as the identical samples; written
+  // both ways, the topic is used.
+  for (const std::string as : {"tf", "both"}) {
+    BagWriteOptions w;
+    w.encoding = "mono8";
+    w.odometry = dir / "odo.txt";
+    w.odometry_as = as;
+    writeDatasetBag(*folder, dir / (as + ".bag"), w);
+    const auto ds = open(dir / (as + ".bag"));
+    ASSERT_TRUE(ds->odometry().has_value()) << as;
+    EXPECT_EQ(ds->odometry()->from, as == "tf" ? "tf" : "topic");
+    const Trajectory file = readTumTrajectory(dir / "odo.txt");
+    const Trajectory bag_odo = ds->odometry()->T_odom_base;
+    ASSERT_EQ(bag_odo.size(), file.size()) << as;
+    for (size_t k = 0; k < file.size(); ++k) {
+      EXPECT_EQ(bag_odo[k].timestamp, file[k].timestamp) << as << " " << k;
+      EXPECT_EQ(bag_odo[k].pose.translation(), file[k].pose.translation()) << as << " " << k;
+      EXPECT_EQ(bag_odo[k].pose.rotation().coeffs(), file[k].pose.rotation().coeffs()) << as << " " << k;
+    }
+  }
+  {
+    BagWriteOptions w;
+    w.odometry = dir / "odo.txt";
+    w.odometry_as = "wheels";
+    const std::string e = test::errorOf([&] { writeDatasetBag(*folder, dir / "x.bag", w); });
+    EXPECT_NE(e.find("field 'odometry_as': 'wheels'"), std::string::npos) << e;
   }
   // A dataset with ground truth: TUM layout (rgb.txt + groundtruth.txt).
   std::string rgb;
@@ -373,6 +410,252 @@ TEST(BagDataset, BadOdometryAndGroundTruthMessages) {
   }
   e = test::errorOf([&] { open(gtb); });
   EXPECT_NE(e.find("topic '/groundtruth', message 2"), std::string::npos) << e;
+}
+
+// ---- Odometry (and ground truth) from tf.
+
+geometry_msgs::TransformStamped transform(const std::string& parent, const std::string& child, double t, const SE3& T) {
+  geometry_msgs::TransformStamped ts;
+  ts.header.stamp = ros::Time(t);
+  ts.header.frame_id = parent;
+  ts.child_frame_id = child;
+  ts.transform.translation.x = T.translation().x();
+  ts.transform.translation.y = T.translation().y();
+  ts.transform.translation.z = T.translation().z();
+  ts.transform.rotation.x = T.rotation().x();
+  ts.transform.rotation.y = T.rotation().y();
+  ts.transform.rotation.z = T.rotation().z();
+  ts.transform.rotation.w = T.rotation().w();
+  return ts;
+}
+
+// The robot's motion: odom -> base_footprint at time t.
+SE3 footprintAt(double t) {
+  return SE3(Eigen::Quaterniond(Eigen::AngleAxisd(0.3 * t, Eigen::Vector3d::UnitZ())),
+             Eigen::Vector3d(0.5 * t, 0.1 * t * t, 0));
+}
+// base_footprint -> base_link (static): up and a little tilted.
+const SE3 kFootprintToBase(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY())),
+                           Eigen::Vector3d(0.02, 0, 0.1));
+
+// A bag of 3 frames (1.0 .. 1.2 s) with REP-105 tf: /tf odom -> base_footprint every 0.05 s from 0.95 s
+// (`edit` may change each), map -> odom, and /tf_static base_footprint -> base_link and base_link ->
+// camera (in one message, as static_transform_publisher batches).
+fs::path writeTfBag(const fs::path& path, const std::function<void(int, geometry_msgs::TransformStamped&)>& edit = {},
+                    bool with_static = true) {
+  writeBag(path, {3, "mono8"});
+  rosbag::Bag b(path.string(), rosbag::bagmode::Append);
+  if (with_static) {
+    tf2_msgs::TFMessage s;
+    s.transforms.push_back(transform("base_footprint", "base_link", 0.0, kFootprintToBase));
+    s.transforms.push_back(transform("base_link", "camera", 0.0, SE3(Eigen::Quaterniond::Identity(), {0.1, 0, 0.3})));
+    b.write("/tf_static", ros::Time(0.5), s);
+  }
+  for (int k = 0; k < 8; ++k) {
+    const double t = 0.95 + 0.05 * k;
+    tf2_msgs::TFMessage m;
+    m.transforms.push_back(transform("map", "odom", t, SE3(Eigen::Quaterniond::Identity(), {1, 2, 0})));
+    m.transforms.push_back(transform("/odom", "base_footprint", t, footprintAt(t)));  // a leading '/' is tf1's
+    if (edit) edit(k, m.transforms.back());
+    b.write("/tf", ros::Time(t), m);
+  }
+  return path;
+}
+
+// odom -> base_link chained through base_footprint (moving) and base_footprint -> base_link (static):
+// found by REP-105's names, at the moving transform's stamps, the product of the two.
+TEST(BagDataset, OdometryFromTfChainsThroughStaticTransforms) {
+  test::TempDir dir;
+  const fs::path bag = writeTfBag(dir / "tf.bag");
+  const auto ds = open(bag);
+  ASSERT_TRUE(ds->odometry().has_value());
+  EXPECT_EQ(ds->odometry()->from, "tf");
+  EXPECT_EQ(ds->odometry()->source, bag.string() + ":tf odom -> base_link");
+  const Trajectory odo = ds->odometry()->T_odom_base;  // odometry() returns a copy
+  ASSERT_EQ(odo.size(), 8u);
+  for (size_t k = 0; k < odo.size(); ++k) {
+    const double t = fromRosTimeForTest(0.95 + 0.05 * static_cast<double>(k));
+    EXPECT_EQ(odo[k].timestamp, t) << k;
+    const SE3 expected = footprintAt(0.95 + 0.05 * static_cast<double>(k)) * kFootprintToBase;
+    EXPECT_LT((odo[k].pose.translation() - expected.translation()).norm(), 1e-12) << k;
+    EXPECT_LT(odo[k].pose.rotation().angularDistance(expected.rotation()), 1e-12) << k;
+  }
+  // Frames named: a single moving transform comes back exactly as recorded (odom -> base_footprint),
+  // and a chain up and down the tree (base_footprint -> camera, both below odom) works too.
+  DatasetOptions o;
+  o.odom_frame = "odom";
+  o.base_frame = "base_footprint";
+  const auto raw = open(bag, o);
+  for (size_t k = 0; k < 8; ++k) {
+    const SE3 T = footprintAt(0.95 + 0.05 * static_cast<double>(k));
+    EXPECT_EQ(raw->odometry()->T_odom_base[k].pose.translation(), T.translation()) << k;
+    EXPECT_LT((raw->odometry()->T_odom_base[k].pose.rotation().coeffs() - T.rotation().coeffs()).norm(), 1e-15) << k;
+  }
+  o.odom_frame = "map";
+  o.base_frame = "camera";
+  const auto cam = open(bag, o);
+  const SE3 expected = SE3(Eigen::Quaterniond::Identity(), {1, 2, 0}) * footprintAt(1.0) * kFootprintToBase *
+                       SE3(Eigen::Quaterniond::Identity(), {0.1, 0, 0.3});
+  EXPECT_LT((cam->odometry()->T_odom_base[1].pose.translation() - expected.translation()).norm(), 1e-12);
+  // Ground truth from tf frames: the camera's pose in map at the frames' stamps (1.0, 1.1, 1.2 s).
+  DatasetOptions g;
+  g.groundtruth_parent_frame = "map";
+  g.groundtruth_child_frame = "camera";
+  const auto gt = open(bag, g);
+  ASSERT_TRUE(gt->hasGroundTruth());
+  EXPECT_LT((gt->groundTruth(0)->translation() - expected.translation()).norm(), 1e-9);
+}
+
+// Two moving transforms in the chain, at different stamps: the pose at every stamp of either, where
+// both have samples; each link interpolated between its own samples (translation linearly, rotation
+// by slerp), as tf2 does.
+TEST(BagDataset, OdometryFromTfInterpolatesMovingLinksAtEachOthersStamps) {
+  test::TempDir dir;
+  const fs::path bag = writeTfBag(dir / "two.bag", {}, false);
+  {
+    rosbag::Bag b(bag.string(), rosbag::bagmode::Append);
+    for (int k = 0; k < 4; ++k) {  // base_footprint -> base_link moving too, at 1.02, 1.12, ...
+      const double t = 1.02 + 0.1 * k;
+      tf2_msgs::TFMessage m;
+      m.transforms.push_back(
+          transform("base_footprint", "base_link", t, SE3(Eigen::Quaterniond::Identity(), {0, 0, t})));
+      b.write("/tf", ros::Time(t), m);
+    }
+  }
+  const auto ds = open(bag);
+  const Trajectory odo = ds->odometry()->T_odom_base;  // odometry() returns a copy
+  // Stamps of either link within 1.02 .. 1.30 s: 1.05, 1.10, ..., 1.30 (6) and 1.02, 1.12, 1.22 (3;
+  // 1.32 is past odom -> base_footprint's last).
+  ASSERT_EQ(odo.size(), 9u);
+  EXPECT_EQ(odo.front().timestamp, fromRosTimeForTest(1.02));
+  // At 1.02 s: odom -> base_footprint between its samples at 1.00 and 1.05.
+  const SE3 a = footprintAt(1.0), b = footprintAt(1.05);
+  const double s =
+      (fromRosTimeForTest(1.02) - fromRosTimeForTest(1.0)) / (fromRosTimeForTest(1.05) - fromRosTimeForTest(1.0));
+  const SE3 fp(a.rotation().slerp(s, b.rotation()), (1 - s) * a.translation() + s * b.translation());
+  const SE3 expected = fp * SE3(Eigen::Quaterniond::Identity(), {0, 0, 1.02});
+  EXPECT_LT((odo.front().pose.translation() - expected.translation()).norm(), 1e-9);
+  EXPECT_LT(odo.front().pose.rotation().angularDistance(expected.rotation()), 1e-9);
+}
+
+// tf's older message type, tf/tfMessage (the same fields and MD5), is read the same way.
+TEST(BagDataset, OdometryFromTf1Messages) {
+#if __has_include(<tf/tfMessage.h>)
+  test::TempDir dir;
+  const fs::path bag = writeBag(dir / "tf1.bag", {3, "mono8"});
+  {
+    rosbag::Bag b(bag.string(), rosbag::bagmode::Append);
+    for (int k = 0; k < 5; ++k) {
+      tf::tfMessage m;
+      m.transforms.push_back(transform("odom", "base_link", 1.0 + 0.1 * k, footprintAt(1.0 + 0.1 * k)));
+      b.write("/tf", ros::Time(1.0 + 0.1 * k), m);
+    }
+  }
+  const auto ds = open(bag);
+  ASSERT_TRUE(ds->odometry().has_value());
+  EXPECT_EQ(ds->odometry()->T_odom_base.size(), 5u);
+  EXPECT_EQ(ds->odometry()->from, "tf");
+#else
+  GTEST_SKIP() << "no tf/tfMessage.h here (libtf-dev)";
+#endif
+}
+
+// An Odometry topic wins over tf unless frames are named; naming both is refused.
+TEST(BagDataset, OdometryTopicWinsOverTfUnlessFramesAreNamed) {
+  test::TempDir dir;
+  const fs::path bag = writeTfBag(dir / "both.bag");
+  {
+    rosbag::Bag b(bag.string(), rosbag::bagmode::Append);
+    for (int k = 0; k < 4; ++k) {
+      nav_msgs::Odometry m;
+      m.header.stamp = ros::Time(1.0 + 0.1 * k);
+      m.pose.pose.orientation.w = 1;
+      b.write("/wheel", ros::Time(1.0 + 0.1 * k), m);
+    }
+  }
+  EXPECT_EQ(open(bag)->odometry()->from, "topic");
+  EXPECT_EQ(open(bag)->odometry()->T_odom_base.size(), 4u);
+  DatasetOptions o;
+  o.odom_frame = "odom";
+  o.base_frame = "base_link";
+  EXPECT_EQ(open(bag, o)->odometry()->from, "tf");
+  o.odometry_topic = "/wheel";
+  const std::string e = test::errorOf([&] { open(bag, o); });
+  EXPECT_NE(e.find("--odometry-topic '/wheel' and --odometry-frames both given"), std::string::npos) << e;
+  // A bag without odom or base_link in its tf and without an Odometry topic: no odometry.
+  DatasetOptions none;
+  EXPECT_FALSE(open(writeBag(dir / "plain.bag", {3, "mono8"}), none)->odometry().has_value());
+}
+
+// Bad tf: an Error naming the bag, the topic, the message and the frames.
+TEST(BagDataset, BadTfIsRefusedNamingBagTopicMessageAndFrames) {
+  test::TempDir dir;
+  const auto refused = [&](const fs::path& bag, DatasetOptions o, const std::vector<std::string>& parts) {
+    const std::string e = test::errorOf([&] { open(bag, o); });
+    EXPECT_NE(e.find(bag.string()), std::string::npos) << e;
+    for (const auto& p : parts) EXPECT_NE(e.find(p), std::string::npos) << "'" << p << "' not in: " << e;
+  };
+  DatasetOptions named;
+  named.odom_frame = "odom";
+  named.base_frame = "base_link";
+  // Frames the tf does not have.
+  DatasetOptions missing = named;
+  missing.base_frame = "base_nope";
+  refused(writeTfBag(dir / "ok.bag"), missing,
+          {"odometry 'odom' -> 'base_nope' (--odometry-frames)", "no frame 'base_nope'", "/tf, /tf_static",
+           "base_footprint"});
+  // A broken chain: without /tf_static nothing links base_link to odom... base_link is not there at
+  // all; with base_link published under another root, the chain is broken.
+  {
+    const fs::path bag = writeTfBag(dir / "broken.bag", {}, false);
+    rosbag::Bag b(bag.string(), rosbag::bagmode::Append);
+    tf2_msgs::TFMessage s;
+    s.transforms.push_back(transform("robot_root", "base_link", 0, SE3()));
+    b.write("/tf_static", ros::Time(0.5), s);
+  }
+  refused(dir / "broken.bag", {},
+          {"odometry 'odom' -> 'base_link'", "the chain is broken", "'base_link' -> 'robot_root'", "'odom' -> 'map'"});
+  // Stamps going back on the moving transform.
+  refused(writeTfBag(dir / "back.bag",
+                     [](int k, geometry_msgs::TransformStamped& ts) {
+                       if (k == 5) ts.header.stamp = ros::Time(1.0);
+                     }),
+          named, {"topic '/tf', message 5, transform 'odom' -> 'base_footprint'", "stamps go back", "header.stamp"});
+  // A non-finite value and a quaternion that is not a unit one.
+  refused(writeTfBag(dir / "nan.bag",
+                     [](int k, geometry_msgs::TransformStamped& ts) {
+                       if (k == 2) ts.transform.translation.y = std::nan("");
+                     }),
+          named, {"topic '/tf', message 2, transform 'odom' -> 'base_footprint'", "field 'transform'", "not finite"});
+  refused(writeTfBag(dir / "quat.bag",
+                     [](int k, geometry_msgs::TransformStamped& ts) {
+                       if (k == 3) ts.transform.rotation.w = 3;
+                     }),
+          named, {"message 3, transform 'odom' -> 'base_footprint'", "'transform.rotation'", "not a unit quaternion"});
+  // base_link with two parents (a second tree claims it).
+  {
+    const fs::path bag = writeTfBag(dir / "parents.bag");
+    rosbag::Bag b(bag.string(), rosbag::bagmode::Append);
+    tf2_msgs::TFMessage m;
+    m.transforms.push_back(transform("other", "base_link", 1.1, SE3()));
+    b.write("/tf", ros::Time(1.1), m);
+  }
+  refused(dir / "parents.bag", named, {"frame 'base_link' has two parents", "'base_footprint' (topic '/tf_static'"});
+  // Frames named in a bag without tf; the chain only static.
+  refused(writeBag(dir / "notf.bag", {3, "mono8"}), named, {"--odometry-frames odom,base_link", "no tf topic"});
+  DatasetOptions fixed = named;
+  fixed.odom_frame = "base_footprint";
+  refused(dir / "ok.bag", fixed, {"'base_footprint' -> 'base_link'", "static"});
+  // A transform that is bad but not on the chain asked for does not refuse the bag.
+  {
+    const fs::path bag = writeTfBag(dir / "elsewhere.bag");
+    rosbag::Bag b(bag.string(), rosbag::bagmode::Append);
+    tf2_msgs::TFMessage m;
+    m.transforms.push_back(transform("base_link", "lidar", 1.1, SE3()));
+    m.transforms.back().transform.rotation.w = 5;
+    b.write("/tf", ros::Time(1.1), m);
+  }
+  EXPECT_EQ(open(dir / "elsewhere.bag", named)->odometry()->T_odom_base.size(), 8u);
 }
 
 // Not a bag, a truncated bag, a directory.

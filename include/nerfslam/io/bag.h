@@ -12,6 +12,8 @@
 //   odometry_topic     nav_msgs/Odometry of every sample of a TUM odometry file (T_odom_base),
 //                      the numbers copied as written (so the bag's odometry reads back exactly as
 //                      `run --odometry FILE` reads the file)
+//   /tf                with odometry_as "tf" (or "both"), the same samples as tf2_msgs/TFMessage,
+//                      one transform odom_frame -> base_frame each, instead of (or beside) the topic
 // Stamps are written as the 9-decimal rounding of the seconds and read back through the same
 // decimal text, so a timestamp with at most 9 decimals comes back as the identical double.
 // The bag is written to a temporary file beside `out` and renamed over it when complete.
@@ -40,6 +42,8 @@ struct BagWriteOptions {
   std::string base_frame = "base_link";
   // A TUM file of T_odom_base (`nerfslam synth`'s odometry.txt); none: no odometry topic.
   std::optional<std::filesystem::path> odometry;
+  // How the odometry is written: "topic" (nav_msgs/Odometry on odometry_topic), "tf" (/tf) or "both".
+  std::string odometry_as = "topic";
   bool groundtruth = true;  // write the dataset's ground truth
   bool progress = false;    // a line on stderr every 100 frames
 };

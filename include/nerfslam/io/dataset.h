@@ -38,9 +38,12 @@
 //   bag         a ROS 1 bag (src/io/bag/dataset_bag.cpp, built when librosbag_storage is found):
 //               sensor_msgs/Image (mono8, rgb8, bgr8, rgba8, bgra8) or CompressedImage (PNG, JPEG)
 //               from one image topic, the camera from a CameraInfo topic (or the override),
-//               odometry (odometry()) from a nav_msgs/Odometry topic and ground truth from a
-//               geometry_msgs/PoseStamped or nav_msgs/Odometry topic when present; every image
-//               message's header (encoding, size, stamp) is checked at open
+//               odometry (odometry()) from a nav_msgs/Odometry topic or else from tf (odom ->
+//               base_link, chained), ground truth from a geometry_msgs/PoseStamped or
+//               nav_msgs/Odometry topic (or tf frames named in the options) when present; every
+//               image message's header (encoding, size, stamp) is checked at open
+// A live camera (`camera:/dev/videoN`) is a stream, not a Dataset: io/frame_stream.h (FrameStream,
+// and StreamRecording, the Dataset of the frames a run recorded from it).
 // Views without capture times (transforms without "timestamp", middlebury, strecha) get
 // index / 30 s (or index / DatasetOptions::fps).
 #include <cstddef>
@@ -103,12 +106,13 @@ class Dataset {
     Eigen::Vector3d offset = Eigen::Vector3d::Zero();
   };
   virtual std::optional<NerfScene> nerfScene() const { return std::nullopt; }
-  // Wheel odometry recorded with the images (a bag's nav_msgs/Odometry topic): T_odom_base samples,
-  // stamps strictly increasing, and where they came from (for messages), as `run --odometry FILE`
-  // would read them.
+  // Wheel odometry recorded with the images (a bag's nav_msgs/Odometry topic, or its tf from the odom
+  // frame to the base frame): T_odom_base samples, stamps strictly increasing, where they came from
+  // (for messages) and how ("topic" or "tf"), as `run --odometry FILE` would read them.
   struct Odometry {
     Trajectory T_odom_base;
     std::string source;
+    std::string from = "topic";
   };
   virtual std::optional<Odometry> odometry() const { return std::nullopt; }
   // Depth of frame i in metres (z along the optical axis; CV_32FC1 of the camera's size, 0 where
@@ -147,6 +151,18 @@ struct DatasetOptions {
   std::string camera_info_topic;
   std::string odometry_topic;
   std::string groundtruth_topic;
+  // A bag's tf (topics /tf and /tf_static, tf2_msgs/TFMessage or tf/tfMessage), used when no
+  // Odometry topic was chosen or detected: the odometry is the pose of `base_frame` in `odom_frame`
+  // over time, chained through the frames between them (static transforms included). Empty: REP-105's
+  // odom and base_link when the bag's tf has both; named here: used even when the bag also has an
+  // Odometry topic (with odometry_topic too: an error), and a frame the tf does not have is an error.
+  std::string odom_frame;
+  std::string base_frame;
+  // Ground truth from tf, when no ground-truth topic was chosen or detected: the pose of
+  // `groundtruth_child_frame` (a camera's optical frame, OpenCV axes) in `groundtruth_parent_frame`.
+  // Both empty: none from tf.
+  std::string groundtruth_parent_frame;
+  std::string groundtruth_child_frame;
 };
 
 // All kind names: folder tum euroc kitti transforms middlebury strecha tsukuba video bag.

@@ -13,6 +13,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "nerfslam/io/frame_stream.h"
 #include "nerfslam/system/slam_system.h"
 
 namespace nerfslam {
@@ -20,12 +21,22 @@ namespace nerfslam {
 struct RunOptions {
   // [kind:]PATH; empty: the demo — the synthetic furnished room (handheld camera, demo_frames frames,
   // 640x480) is rendered with OSMesa into OUT/sequence and run with its ground truth.
+  // camera:/dev/videoN or camera:N: a live camera (io/frame_stream.h), read at its rate with
+  // `realtime` semantics (implied: a frame arriving while tracking is busy drops the oldest waiting
+  // one), `camera` required. Every frame that reaches tracking is recorded in OUT/frames, a `folder:`
+  // dataset the end-of-run outputs read and that replays the run; `max_frames` ends the run after that
+  // many frames reached tracking, a stop request (Ctrl-C) keeps what was done, and a device that
+  // stops delivering ends it with an error naming the device.
   std::string dataset;
+  // Opens the stream of a camera: dataset instead of the device (given its name): tests drive the
+  // streaming path from a video file (openVideoFileStream) or a synthetic source. With it, `realtime`
+  // is as given (false: the reader waits for tracking, as offline runs do, so a run is repeatable).
+  std::function<std::unique_ptr<FrameStream>(const std::string& device)> open_stream;
   int demo_frames = 300;
   std::optional<std::filesystem::path> camera;
   std::optional<std::filesystem::path> config;
   std::filesystem::path out;
-  std::size_t max_frames = 0;  // 0: all
+  std::size_t max_frames = 0;  // 0: all (a camera: until stopped)
   double fps = 0;              // DatasetOptions::fps (--fps): timestamps of a folder without times.txt
   bool realtime = false;
   bool nerf = true;                     // false: SystemOptions::nerf.enabled = false (--no-nerf)
@@ -45,11 +56,14 @@ struct RunOptions {
   // A dataset's own odometry (a bag's nav_msgs/Odometry topic, Dataset::odometry()) is used the
   // same way when `odometry` is not given (the file wins; not with `map`).
   std::optional<std::filesystem::path> odometry;
-  // A bag's topics (DatasetOptions::image_topic ...; empty: detected).
+  // A bag's topics (DatasetOptions::image_topic ...; empty: detected) and tf frames
+  // (DatasetOptions::odom_frame ...: the odometry, or the ground truth, from tf).
   std::string image_topic;
   std::string camera_info_topic;
   std::string odometry_topic;
   std::string groundtruth_topic;
+  std::string odom_frame, base_frame;
+  std::string groundtruth_parent_frame, groundtruth_child_frame;
 };
 
 struct RunResult {

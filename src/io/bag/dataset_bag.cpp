@@ -6,7 +6,9 @@
 // encoding, the size (the first image's for all), the data's length against step x height, and
 // the stamps (header.stamp, strictly increasing); a CompressedImage's format is sniffed from its
 // bytes (PNG, JPEG) and its header's size compared. The camera_info topic's first message gives the
-// camera; the odometry and ground-truth topics are read whole. Every error names the bag, the
+// camera; the odometry and ground-truth topics are read whole, and so are /tf and /tf_static when the
+// odometry or ground truth may come from tf (TfTree: only the transforms on the chain asked for are
+// checked). Every error names the bag, the
 // topic and the message's index on its topic. load(i) reads message i again (under a mutex: the
 // bag is one file handle) and converts it.
 //
@@ -20,8 +22,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <set>
 
 #include <sys/mman.h>
@@ -37,6 +41,7 @@
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <spdlog/spdlog.h>
+#include <tf2_msgs/TFMessage.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -58,6 +63,10 @@ constexpr const char* kCompressed = "sensor_msgs/CompressedImage";
 constexpr const char* kCameraInfo = "sensor_msgs/CameraInfo";
 constexpr const char* kOdometry = "nav_msgs/Odometry";
 constexpr const char* kPoseStamped = "geometry_msgs/PoseStamped";
+// tf: tf2_msgs/TFMessage and tf's older tf/tfMessage are the same message (the same MD5), read as one.
+constexpr const char* kTf2Message = "tf2_msgs/TFMessage";
+constexpr const char* kTfMessage = "tf/tfMessage";
+const std::vector<std::string> kTfTopics = {"/tf", "/tf_static"};
 constexpr int kMaxSide = 16384;
 
 // What the checking child (see the top of the file) is reading; in memory shared with the parent.
@@ -125,6 +134,273 @@ int rawChannels(const std::string& e) {
   return -1;
 }
 
+// ---- tf: the bag's transforms (/tf, /tf_static) as a tree of frames, and the pose of one frame
+// in another over time.
+
+std::string stripSlash(const std::string& frame) { return !frame.empty() && frame[0] == '/' ? frame.substr(1) : frame; }
+
+// The transforms of a bag's tf topics, as recorded; checked only where a chain uses them, so a bad
+// transform between frames nobody asked for does not refuse the bag.
+class TfTree {
+ public:
+  // One recorded transform parent -> child.
+  struct Sample {
+    ros::Time stamp;
+    geometry_msgs::Transform transform;
+    std::string topic;
+    size_t message = 0;
+  };
+  struct Link {
+    std::string parent, child;
+    bool is_static = false;
+    std::vector<Sample> samples;  // in the bag's order (a static link: the last one counts)
+    // Another parent, or the same child on both tf topics: named when a chain uses this link.
+    std::string conflict;
+  };
+
+  TfTree(const rosbag::Bag& bag, const fs::path& file, const std::map<std::string, std::string>& topics) : file_(file) {
+    for (const std::string& topic : kTfTopics) {
+      auto it = topics.find(topic);
+      if (it == topics.end()) continue;
+      if (it->second != kTf2Message && it->second != kTfMessage) {
+        spdlog::warn("{}: topic '{}' is a {}, not a {} or {}: not read as tf", file_.string(), topic, it->second,
+                     kTf2Message, kTfMessage);
+        continue;
+      }
+      topics_.push_back(topic);
+      read(bag, topic, topic == "/tf_static");
+    }
+  }
+
+  bool empty() const { return topics_.empty(); }
+  bool hasFrame(const std::string& f) const { return frames_.count(f) > 0; }
+  std::string topicsText() const { return fmt::format("{}", fmt::join(topics_, ", ")); }
+
+  // The pose of `child` in `parent` (T_parent_child) at the stamps of the chain's moving transforms
+  // (where they overlap; a moving link between its samples is interpolated as tf2 does). `what` names
+  // the use ("odometry", "ground truth") and `option` the flag choosing the frames, for messages.
+  // Throws an Error naming the bag, the tf topic, the message and the frames for a frame the tf does
+  // not have, a broken chain, a frame with two parents, stamps going back, a non-finite value or a
+  // non-unit quaternion.
+  Trajectory chain(const std::string& parent, const std::string& child, const std::string& what,
+                   const std::string& option) const {
+    const std::string pair = fmt::format("'{}' -> '{}'", parent, child);
+    for (const std::string& f : {parent, child})
+      if (!hasFrame(f))
+        fail("{}: {} {} ({}): the bag's tf ({}) has no frame '{}'; its frames: {}", file_.string(), what, pair, option,
+             topicsText(), cutForMessage(f), frameList());
+    if (parent == child) fail("{}: {} {} ({}): the two frames are the same", file_.string(), what, pair, option);
+    // Each frame up to its root; the chain meets where they first share a frame.
+    const std::vector<std::string> up_child = ancestors(child, what, pair), up_parent = ancestors(parent, what, pair);
+    std::string meet;
+    for (const std::string& f : up_child)
+      if (std::find(up_parent.begin(), up_parent.end(), f) != up_parent.end()) {
+        meet = f;
+        break;
+      }
+    if (meet.empty())
+      fail(
+          "{}: {} {} ({}): the chain is broken: no transforms link the two frames in the bag's tf ({}); '{}' goes up "
+          "to {}, '{}' up to {}",
+          file_.string(), what, pair, option, topicsText(), child, path(up_child), parent, path(up_parent));
+    // The links from the meeting frame down to each end, checked.
+    std::vector<const Link*> to_child, to_parent;
+    for (size_t k = 0; up_child[k] != meet; ++k) to_child.push_back(&checkedLink(up_child[k]));
+    for (size_t k = 0; up_parent[k] != meet; ++k) to_parent.push_back(&checkedLink(up_parent[k]));
+
+    std::vector<const Link*> moving;
+    for (const auto* chain : {&to_child, &to_parent})
+      for (const Link* l : *chain)
+        if (!l->is_static) moving.push_back(l);
+    if (moving.empty())
+      fail("{}: {} {} ({}): every transform between the two frames is static (/tf_static): no motion over time",
+           file_.string(), what, pair, option);
+    // The stamps: the moving links' own, where all of them have samples.
+    double begin = -std::numeric_limits<double>::infinity(), end = std::numeric_limits<double>::infinity();
+    std::vector<double> stamps;
+    for (const Link* l : moving) {
+      const std::vector<TimedPose>& poses = posesOf(*l);
+      begin = std::max(begin, poses.front().t);
+      end = std::min(end, poses.back().t);
+      for (const TimedPose& p : poses) stamps.push_back(p.t);
+    }
+    std::sort(stamps.begin(), stamps.end());
+    stamps.erase(std::unique(stamps.begin(), stamps.end()), stamps.end());
+    Trajectory out;
+    for (double t : stamps) {
+      if (t < begin || t > end) continue;
+      // T_meet_child and T_meet_parent: the links' poses multiplied from the meeting frame down (none
+      // on a side: the meeting frame is that end itself, and nothing is multiplied, so a single
+      // moving link parent -> child gives its recorded poses unchanged).
+      auto down = [&](const std::vector<const Link*>& links) -> std::optional<SE3> {
+        std::optional<SE3> T;
+        for (auto it = links.rbegin(); it != links.rend(); ++it) {
+          const SE3 P = poseAt(**it, t);
+          T = T ? *T * P : P;
+        }
+        return T;
+      };
+      const std::optional<SE3> T_meet_child = down(to_child), T_meet_parent = down(to_parent);
+      SE3 T = T_meet_child ? *T_meet_child : SE3();
+      if (T_meet_parent) T = T_meet_parent->inverse() * T;
+      out.push_back({t, T});
+    }
+    if (out.size() < 2)
+      fail("{}: {} {} ({}): the moving transforms of the chain overlap in {} stamp(s), at least 2 needed",
+           file_.string(), what, pair, option, out.size());
+    return out;
+  }
+
+ private:
+  struct TimedPose {
+    double t;
+    SE3 pose;
+  };
+
+  void read(const rosbag::Bag& bag, const std::string& topic, bool is_static) {
+    try {
+      rosbag::View view(bag, rosbag::TopicQuery(topic));
+      size_t k = 0;
+      for (const rosbag::MessageInstance& m : view) {
+        noteReading(topic, k);
+        const std::string where = fmt::format("{}: topic '{}', message {}", file_.string(), topic, k);
+        const auto p = m.instantiate<tf2_msgs::TFMessage>();
+        if (!p) fail("{}: the message is not a {} (its type: {})", where, kTf2Message, m.getDataType());
+        for (const geometry_msgs::TransformStamped& ts : p->transforms) {
+          const std::string parent = stripSlash(ts.header.frame_id), child = stripSlash(ts.child_frame_id);
+          if (parent.empty() || child.empty()) continue;  // tf2 ignores these too
+          frames_.insert(parent);
+          frames_.insert(child);
+          Link& l = links_[child];
+          if (l.samples.empty()) {
+            l.parent = parent;
+            l.child = child;
+            l.is_static = is_static;
+          } else if (l.conflict.empty() && (l.parent != parent || l.is_static != is_static)) {
+            const Sample& first = l.samples.front();
+            l.conflict = l.parent != parent
+                             ? fmt::format(
+                                   "frame '{}' has two parents, '{}' (topic '{}', message {}) and '{}' (topic "
+                                   "'{}', message {})",
+                                   child, l.parent, first.topic, first.message, parent, topic, k)
+                             : fmt::format("the transform '{}' -> '{}' is on both '{}' and '{}'", parent, child,
+                                           first.topic, topic);
+          }
+          if (l.parent == parent && l.is_static == is_static)
+            l.samples.push_back({ts.header.stamp, ts.transform, topic, k});
+        }
+        ++k;
+      }
+    } catch (const Error&) {
+      throw;
+    } catch (const std::exception& e) {
+      fail("{}: topic '{}': the bag cannot be read ({})", file_.string(), topic, e.what());
+    }
+  }
+
+  // `frame` and its parents up to the root; a link on the way that is recorded with two parents is
+  // an error (`what` and `pair` name the chain asked for).
+  std::vector<std::string> ancestors(const std::string& frame, const std::string& what, const std::string& pair) const {
+    std::vector<std::string> up{frame};
+    for (auto it = links_.find(frame); it != links_.end(); it = links_.find(it->second.parent)) {
+      if (!it->second.conflict.empty())
+        fail("{}: {} {}: {} in the bag's tf", file_.string(), what, pair, it->second.conflict);
+      if (std::find(up.begin(), up.end(), it->second.parent) != up.end())
+        fail("{}: the bag's tf ({}) has a loop: {} -> '{}'", file_.string(), topicsText(), path(up), it->second.parent);
+      up.push_back(it->second.parent);
+    }
+    return up;
+  }
+
+  static std::string path(const std::vector<std::string>& frames) {
+    std::string s;
+    for (const auto& f : frames) s += (s.empty() ? "'" : " -> '") + f + "'";
+    return s + (frames.size() == 1 ? " (no parent)" : "");
+  }
+
+  std::string frameList() const {
+    std::string s;
+    size_t n = 0;
+    for (const auto& f : frames_) {
+      if (++n > 30) return s + fmt::format(", ... ({} frames)", frames_.size());
+      s += (s.empty() ? "" : ", ") + f;
+    }
+    return s.empty() ? "none" : s;
+  }
+
+  // The link from `child` to its parent, its samples checked (once): finite values, unit
+  // quaternions, stamps that do not go back (a repeated stamp is dropped, as tf2 does).
+  const Link& checkedLink(const std::string& child) const {
+    const Link& l = links_.at(child);  // its conflicts: ancestors() named them
+    posesOf(l);
+    return l;
+  }
+
+  const std::vector<TimedPose>& posesOf(const Link& l) const {
+    auto it = poses_.find(&l);
+    if (it != poses_.end()) return it->second;
+    std::vector<TimedPose> poses;
+    size_t repeated = 0;
+    const std::string& child = l.child;
+    for (const Sample& s : l.samples) {
+      const std::string where = fmt::format("{}: topic '{}', message {}, transform '{}' -> '{}'", file_.string(),
+                                            s.topic, s.message, l.parent, child);
+      if (s.stamp.nsec >= 1000000000u) fail("{}: field 'header.stamp': nsec {} >= 1e9", where, s.stamp.nsec);
+      const double t = fromRosTime(s.stamp);
+      const geometry_msgs::Transform& tr = s.transform;
+      SE3 pose;
+      try {
+        pose = checkedPose(tr.translation.x, tr.translation.y, tr.translation.z, tr.rotation.x, tr.rotation.y,
+                           tr.rotation.z, tr.rotation.w, where);
+      } catch (const Error& e) {
+        // checkedPose names the Odometry message's fields; a transform's are translation and rotation.
+        std::string m = e.what();
+        for (const auto& [from, to] :
+             {std::pair<std::string, std::string>{"'pose.orientation'", "'transform.rotation'"},
+              {"'pose'", "'transform'"}})
+          if (auto p = m.find(from); p != std::string::npos) m.replace(p, from.size(), to);
+        throw Error(m);
+      }
+      if (l.is_static) {
+        poses = {{t, pose}};  // the last one published counts
+        continue;
+      }
+      if (!poses.empty() && t < poses.back().t)
+        fail("{}: field 'header.stamp': {} s is before the previous transform's ({} s): stamps go back", where,
+             numberForMessage(t, 9), numberForMessage(poses.back().t, 9));
+      if (!poses.empty() && t == poses.back().t) {
+        ++repeated;
+        continue;
+      }
+      poses.push_back({t, pose});
+    }
+    if (repeated > 0)
+      spdlog::warn("{}: tf '{}' -> '{}': {} transform(s) with the stamp of the one before ignored (as tf2 does)",
+                   file_.string(), l.parent, child, repeated);
+    return poses_.emplace(&l, std::move(poses)).first->second;
+  }
+
+  // A link's pose at t: a static one's always; a moving one's sample at t, or interpolated between
+  // the two around it (t is within its samples: chain() takes the overlap).
+  SE3 poseAt(const Link& l, double t) const {
+    const std::vector<TimedPose>& p = posesOf(l);
+    if (l.is_static) return p.front().pose;
+    auto it = std::lower_bound(p.begin(), p.end(), t, [](const TimedPose& a, double v) { return a.t < v; });
+    if (it->t == t) return it->pose;
+    // As tf2 does: the translation linearly, the rotation by slerp.
+    const TimedPose& a = *(it - 1);
+    const double s = (t - a.t) / (it->t - a.t);
+    return SE3(a.pose.rotation().slerp(s, it->pose.rotation()),
+               (1.0 - s) * a.pose.translation() + s * it->pose.translation());
+  }
+
+  fs::path file_;
+  std::vector<std::string> topics_;
+  std::set<std::string> frames_;
+  std::map<std::string, Link> links_;  // by child frame
+  mutable std::map<const Link*, std::vector<TimedPose>> poses_;
+};
+
 class BagDataset : public Dataset {
  public:
   BagDataset(fs::path file, const DatasetOptions& opts) : file_(std::move(file)) {
@@ -159,33 +435,83 @@ class BagDataset : public Dataset {
            camera_.height, image_topic_, file_.string(), width_, height_);
     camera_.validate(camera_source);
 
+    // Odometry: a nav_msgs/Odometry topic (named, or the only one), else tf (the frames named, or
+    // REP-105's odom and base_link when the tf has both). Named frames win over a detected topic.
+    const bool frames_named = !opts.odom_frame.empty() || !opts.base_frame.empty();
+    if (frames_named && !opts.odometry_topic.empty())
+      fail("{}: --odometry-topic '{}' and --odometry-frames both given: the odometry comes from one of them",
+           file_.string(), cutForMessage(opts.odometry_topic));
     std::string odo_topic = opts.odometry_topic;
+    bool ambiguous = false;
     if (!odo_topic.empty()) {
       requireTopic(topics, odo_topic, {kOdometry}, "--odometry-topic");
-    } else {
+    } else if (!frames_named) {
       std::vector<std::string> found;
       for (const auto& [t, type] : topics)
         if (type == kOdometry && t != opts.groundtruth_topic && t != "/groundtruth") found.push_back(t);
       if (found.size() == 1) odo_topic = found[0];
-      if (found.size() > 1)
-        spdlog::warn("{}: several nav_msgs/Odometry topics ({}): no odometry used; choose one with --odometry-topic",
-                     file_.string(), fmt::join(found, ", "));
+      if (found.size() > 1) {
+        ambiguous = true;
+        spdlog::warn(
+            "{}: several nav_msgs/Odometry topics ({}): no odometry used; choose one with --odometry-topic (or tf "
+            "frames with --odometry-frames)",
+            file_.string(), fmt::join(found, ", "));
+      }
     }
-    if (!odo_topic.empty()) readOdometry(odo_topic);
+    // The tf, read when it may be used.
+    const bool gt_frames = !opts.groundtruth_parent_frame.empty() || !opts.groundtruth_child_frame.empty();
+    std::optional<TfTree> tf_tree;
+    if ((odo_topic.empty() && !ambiguous) || gt_frames) tf_tree.emplace(bag_, file_, topics);
+    std::string odo_what = "none";
+    if (!odo_topic.empty()) {
+      readOdometry(odo_topic);
+      odo_what = fmt::format("topic '{}' ({} samples)", odo_topic, odometry_->T_odom_base.size());
+    } else if (!ambiguous) {
+      const TfTree& tf = *tf_tree;
+      const std::string odom = opts.odom_frame.empty() ? "odom" : opts.odom_frame;
+      const std::string base = opts.base_frame.empty() ? "base_link" : opts.base_frame;
+      if (frames_named && tf.empty())
+        fail("{}: --odometry-frames {},{}: the bag has no tf topic (/tf, /tf_static); its topics: {}", file_.string(),
+             cutForMessage(odom), cutForMessage(base), topicList(topics));
+      if (frames_named || (tf.hasFrame(odom) && tf.hasFrame(base))) {
+        Trajectory t = tf.chain(odom, base, "odometry", "--odometry-frames");
+        odometry_ = Odometry{std::move(t), fmt::format("{}:tf {} -> {}", file_.string(), odom, base), "tf"};
+        odo_what =
+            fmt::format("tf '{}' -> '{}' ({}; {} samples)", odom, base, tf.topicsText(), odometry_->T_odom_base.size());
+      }
+    }
 
+    // Ground truth: a topic (named, or /groundtruth), else tf frames when named (they win over
+    // /groundtruth).
+    if (gt_frames && (opts.groundtruth_parent_frame.empty() || opts.groundtruth_child_frame.empty()))
+      fail("{}: --groundtruth-frames needs two frames, PARENT,CAMERA", file_.string());
+    if (gt_frames && !opts.groundtruth_topic.empty())
+      fail("{}: --groundtruth-topic '{}' and --groundtruth-frames both given: the ground truth comes from one of them",
+           file_.string(), cutForMessage(opts.groundtruth_topic));
     std::string gt_topic = opts.groundtruth_topic;
     if (!gt_topic.empty())
       requireTopic(topics, gt_topic, {kPoseStamped, kOdometry}, "--groundtruth-topic");
-    else if (topics.count("/groundtruth") &&
+    else if (!gt_frames && topics.count("/groundtruth") &&
              (topics.at("/groundtruth") == kPoseStamped || topics.at("/groundtruth") == kOdometry))
       gt_topic = "/groundtruth";
-    if (!gt_topic.empty()) readGroundTruth(gt_topic);
+    std::string gt_what = "none";
+    if (!gt_topic.empty()) {
+      readGroundTruth(readPoses(gt_topic));
+      gt_what = "topic '" + gt_topic + "'";
+    } else if (gt_frames) {
+      const std::string& parent = opts.groundtruth_parent_frame;
+      const std::string& child = opts.groundtruth_child_frame;
+      const TfTree& tf = *tf_tree;
+      if (tf.empty())
+        fail("{}: --groundtruth-frames {},{}: the bag has no tf topic (/tf, /tf_static); its topics: {}",
+             file_.string(), cutForMessage(parent), cutForMessage(child), topicList(topics));
+      readGroundTruth(tf.chain(parent, child, "ground truth", "--groundtruth-frames"));
+      gt_what = fmt::format("tf '{}' -> '{}'", parent, child);
+    }
 
     spdlog::info("opened bag {}: {} frames on '{}' ({}), {}x{}, {:.3f} .. {:.3f} s; odometry {}; ground truth {}",
                  file_.string(), frames_.size(), image_topic_, compressed_ ? "compressed" : "raw", width_, height_,
-                 frames_.front().t, frames_.back().t,
-                 odometry_ ? fmt::format("'{}' ({} samples)", odo_topic, odometry_->T_odom_base.size()) : "none",
-                 has_gt_ ? "'" + gt_topic + "'" : "none");
+                 frames_.front().t, frames_.back().t, odo_what, has_gt_ ? gt_what : "none");
   }
 
   std::string kind() const override { return "bag"; }
@@ -476,9 +802,9 @@ class BagDataset : public Dataset {
     odometry_ = Odometry{std::move(t), fmt::format("{}:{}", file_.string(), topic)};
   }
 
-  void readGroundTruth(const std::string& topic) {
+  void readGroundTruth(const Trajectory& poses) {
     std::vector<io_detail::TimedPose> gt;
-    for (const auto& e : readPoses(topic)) gt.push_back({e.timestamp, e.pose});
+    for (const auto& e : poses) gt.push_back({e.timestamp, e.pose});
     for (Frame& f : frames_) {
       f.gt = io_detail::interpolatePose(gt, f.t, 0.02);
       has_gt_ = has_gt_ || f.gt.has_value();
@@ -553,6 +879,8 @@ bool bagSupported() { return true; }
 
 void writeDatasetBag(const Dataset& ds, const fs::path& out, const BagWriteOptions& o) {
   const std::string& enc = o.encoding;
+  if (o.odometry_as != "topic" && o.odometry_as != "tf" && o.odometry_as != "both")
+    fail("{}: field 'odometry_as': '{}' is not one of topic, tf, both", out.string(), cutForMessage(o.odometry_as));
   const bool compressed = enc == "png" || enc == "jpeg";
   if (!compressed && enc != "mono8" && enc != "rgb8" && enc != "bgr8")
     fail("{}: field 'encoding': '{}' is not one of mono8, rgb8, bgr8, png, jpeg", out.string(), cutForMessage(enc));
@@ -628,21 +956,42 @@ void writeDatasetBag(const Dataset& ds, const fs::path& out, const BagWriteOptio
       }
       if (o.progress && (i + 1) % 100 == 0) std::fprintf(stderr, "bag: %zu/%zu frames\n", i + 1, ds.size());
     }
+    const bool odo_topic = o.odometry_as == "topic" || o.odometry_as == "both";
+    const bool odo_tf = o.odometry_as == "tf" || o.odometry_as == "both";
     for (size_t k = 0; k < odo.size(); ++k) {
       const std::vector<double>& v = odo[k];
-      nav_msgs::Odometry m;
-      m.header.seq = static_cast<uint32_t>(k);
-      m.header.stamp = toRosTime(v[0], fmt::format("{}: sample {}", o.odometry->string(), k));
-      m.header.frame_id = o.odom_frame;
-      m.child_frame_id = o.base_frame;
-      m.pose.pose.position.x = v[1];
-      m.pose.pose.position.y = v[2];
-      m.pose.pose.position.z = v[3];
-      m.pose.pose.orientation.x = v[4];
-      m.pose.pose.orientation.y = v[5];
-      m.pose.pose.orientation.z = v[6];
-      m.pose.pose.orientation.w = v[7];
-      bag.write(o.odometry_topic, bagTime(m.header.stamp), m);
+      std_msgs::Header header;
+      header.seq = static_cast<uint32_t>(k);
+      header.stamp = toRosTime(v[0], fmt::format("{}: sample {}", o.odometry->string(), k));
+      header.frame_id = o.odom_frame;
+      if (odo_topic) {
+        nav_msgs::Odometry m;
+        m.header = header;
+        m.child_frame_id = o.base_frame;
+        m.pose.pose.position.x = v[1];
+        m.pose.pose.position.y = v[2];
+        m.pose.pose.position.z = v[3];
+        m.pose.pose.orientation.x = v[4];
+        m.pose.pose.orientation.y = v[5];
+        m.pose.pose.orientation.z = v[6];
+        m.pose.pose.orientation.w = v[7];
+        bag.write(o.odometry_topic, bagTime(header.stamp), m);
+      }
+      if (odo_tf) {
+        geometry_msgs::TransformStamped ts;
+        ts.header = header;
+        ts.child_frame_id = o.base_frame;
+        ts.transform.translation.x = v[1];
+        ts.transform.translation.y = v[2];
+        ts.transform.translation.z = v[3];
+        ts.transform.rotation.x = v[4];
+        ts.transform.rotation.y = v[5];
+        ts.transform.rotation.z = v[6];
+        ts.transform.rotation.w = v[7];
+        tf2_msgs::TFMessage m;
+        m.transforms.push_back(ts);
+        bag.write("/tf", bagTime(header.stamp), m);
+      }
     }
     bag.close();
   } catch (const Error&) {
