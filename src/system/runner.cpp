@@ -257,6 +257,25 @@ struct FramePipe {
   std::vector<std::string> image_problems;
 };
 
+// Hands a frame read to the tracking thread: --realtime drops the oldest waiting frame when tracking
+// lags; otherwise the reader waits for room, and in lockstep until the frame is tracked (or
+// tracking failed, or --max-frames were tracked) and mapping is idle. False: the queue was closed.
+bool handOver(FramePipe& pipe, InputFrame f, bool realtime, bool lockstep, SlamSystem& slam) {
+  if (realtime) {
+    pipe.queue.tryPush(std::move(f));
+    ++pipe.queued;
+    return true;
+  }
+  if (!pipe.queue.push(std::move(f))) return false;
+  ++pipe.queued;
+  if (lockstep) {
+    while (pipe.processed.load() < pipe.queued.load() && !pipe.aborted && !pipe.enough)
+      std::this_thread::sleep_for(std::chrono::microseconds(200));
+    slam.waitMappingIdle();
+  }
+  return true;
+}
+
 // Mean intensity and a sharpness measure to explain failures ("black", "saturated", "blurred").
 std::string describeImageProblem(const cv::Mat& gray) {
   cv::Scalar mean, stddev;
@@ -318,17 +337,8 @@ void readFrames(const Dataset& ds, SlamSystem& slam, const RunOptions& ro, const
       // In slices, so that a stop request does not wait for a long gap between timestamps.
       while (Clock::now() < due && stopRequests() == 0)
         std::this_thread::sleep_until(std::min(due, Clock::now() + std::chrono::milliseconds(100)));
-      pipe.queue.tryPush(std::move(f));  // drops the oldest waiting frame when tracking lags
-      ++pipe.queued;
-    } else {
-      if (!pipe.queue.push(std::move(f))) break;
-      ++pipe.queued;
-      if (lockstep) {
-        while (pipe.processed.load() < pipe.queued.load() && !pipe.aborted)
-          std::this_thread::sleep_for(std::chrono::microseconds(200));
-        slam.waitMappingIdle();
-      }
     }
+    if (!handOver(pipe, std::move(f), ro.realtime, lockstep, slam)) break;
     if (pipe.queued.load() % RunStats::kWindow == 0)
       stats.addWindowSample({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
   }
@@ -401,18 +411,7 @@ void readStream(FrameStream& stream, const Camera& camera, SlamSystem& slam, con
     f.timestamp = sf.timestamp;
     // Colour for the NeRF (tracking converts to grey itself), else grey, as readFrames loads them.
     f.image = convertStreamImage(sf.image, sys.nerf.enabled);
-    if (ro.realtime) {
-      pipe.queue.tryPush(std::move(f));  // drops the oldest waiting frame when tracking lags
-      ++pipe.queued;
-    } else {
-      if (!pipe.queue.push(std::move(f))) break;
-      ++pipe.queued;
-      if (lockstep) {
-        while (pipe.processed.load() < pipe.queued.load() && !pipe.aborted && !pipe.enough)
-          std::this_thread::sleep_for(std::chrono::microseconds(200));
-        slam.waitMappingIdle();
-      }
-    }
+    if (!handOver(pipe, std::move(f), ro.realtime, lockstep, slam)) break;
     if (pipe.queued.load() % RunStats::kWindow == 0)
       stats.addWindowSample({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
   }

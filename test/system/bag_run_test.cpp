@@ -7,6 +7,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/io/bag.h"
 #include "nerfslam/io/dataset.h"
 #include "nerfslam/render/synth.h"
@@ -16,13 +17,6 @@
 namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
-
-std::string readFile(const fs::path& p) {
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 RunResult runOn(const std::string& dataset, const fs::path& out, const fs::path& config,
                 const std::optional<fs::path>& odometry = {}) {
@@ -76,13 +70,13 @@ TEST(BagRun, SyntheticRoomBagTracksExactlyLikeTheFolder) {
   for (const char* field : {"applied_scale", "scale_applied_at_frame"})
     EXPECT_EQ(rt.report.at("odometry").at(field), rb.report.at("odometry").at(field)) << field;
   EXPECT_EQ(rt.report.at("ate_se3_rmse_m").get<double>(), rb.report.at("ate_se3_rmse_m").get<double>());
-  EXPECT_EQ(readFile(dir / "tf_out" / "trajectory.txt"), readFile(dir / "bag_out" / "trajectory.txt"));
+  EXPECT_EQ(readInputFile(dir / "tf_out" / "trajectory.txt"), readInputFile(dir / "bag_out" / "trajectory.txt"));
   EXPECT_EQ(rb.report.at("dataset_kind").get<std::string>(), "bag");
   EXPECT_EQ(rb.report.at("frames_tracked").get<int>(), 70);
-  const std::string tf = readFile(dir / "folder_out" / "trajectory.txt");
+  const std::string tf = readInputFile(dir / "folder_out" / "trajectory.txt");
   EXPECT_GT(std::count(tf.begin(), tf.end(), '\n'), 60);
-  EXPECT_EQ(readFile(dir / "bag_out" / "trajectory.txt"), tf);
-  EXPECT_EQ(readFile(dir / "bag_out" / "keyframes.txt"), readFile(dir / "folder_out" / "keyframes.txt"));
+  EXPECT_EQ(readInputFile(dir / "bag_out" / "trajectory.txt"), tf);
+  EXPECT_EQ(readInputFile(dir / "bag_out" / "keyframes.txt"), readInputFile(dir / "folder_out" / "keyframes.txt"));
   // The bag's ground truth scores the run as the folder's does (its poses went through a
   // geometry_msgs/Pose: equal to rounding).
   EXPECT_NEAR(rb.report.at("ate_rmse_m").get<double>(), rf.report.at("ate_rmse_m").get<double>(), 1e-12);
@@ -100,9 +94,9 @@ TEST(BagRun, Kitti06BagWithOdometryTracksExactlyLikeTheFolder) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   // KITTI's options and synth's extrinsic (README, metric scale from wheel odometry).
   {
-    const std::string synthetic = readFile(test::sourceDir() / "config" / "system" / "synthetic.yaml");
-    test::writeText(dir / "kitti_odo.yaml", readFile(test::sourceDir() / "config" / "system" / "kitti.yaml") + "\n" +
-                                                synthetic.substr(synthetic.find("\nodometry:") + 1));
+    const std::string synthetic = readInputFile(test::sourceDir() / "config" / "system" / "synthetic.yaml");
+    test::writeText(dir / "kitti_odo.yaml", readInputFile(test::sourceDir() / "config" / "system" / "kitti.yaml") +
+                                                "\n" + synthetic.substr(synthetic.find("\nodometry:") + 1));
   }
   const fs::path bag = dir / "k06.bag";
   r = test::runCli("bag --dataset kitti:" + data.string() + " --encoding mono8 --odometry '" +
@@ -126,13 +120,13 @@ TEST(BagRun, Kitti06BagWithOdometryTracksExactlyLikeTheFolder) {
             rb.report.at("odometry").at("applied_scale").get<double>());
   EXPECT_EQ(rt.report.at("odometry").at("scale_applied_at_frame"),
             rb.report.at("odometry").at("scale_applied_at_frame"));
-  EXPECT_EQ(readFile(dir / "tf_out" / "trajectory.txt"), readFile(dir / "bag_out" / "trajectory.txt"));
+  EXPECT_EQ(readInputFile(dir / "tf_out" / "trajectory.txt"), readInputFile(dir / "bag_out" / "trajectory.txt"));
   EXPECT_EQ(rt.report.at("ate_se3_percent_of_path").get<double>(),
             rb.report.at("ate_se3_percent_of_path").get<double>());
   EXPECT_EQ(rb.report.at("frames_tracked").get<int>(), 51);
   EXPECT_EQ(rf.report.at("scale_source").get<std::string>(), "odometry");
   EXPECT_EQ(rb.report.at("scale_source").get<std::string>(), "odometry");
-  EXPECT_EQ(readFile(dir / "bag_out" / "trajectory.txt"), readFile(dir / "folder_out" / "trajectory.txt"));
+  EXPECT_EQ(readInputFile(dir / "bag_out" / "trajectory.txt"), readInputFile(dir / "folder_out" / "trajectory.txt"));
   EXPECT_EQ(rb.report.at("ate_se3_percent_of_path").get<double>(),
             rf.report.at("ate_se3_percent_of_path").get<double>());
   EXPECT_LT(rb.report.at("ate_se3_percent_of_path").get<double>(), 1.0);

@@ -16,6 +16,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "nerfslam/core/input_file.h"
 #include "nerfslam/core/options_yaml.h"
 #include "nerfslam/core/stop_signal.h"
 #include "nerfslam/io/dataset.h"
@@ -29,13 +30,6 @@
 namespace nerfslam {
 namespace {
 namespace fs = std::filesystem;
-
-std::string readFile(const fs::path& p) {
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 // A dataset's colour frames as a live source, at its timestamps; `period_ms` > 0 delivers one frame
 // per period (a camera's rate), 0 as fast as asked. After `fail_after` frames it fails as a device
@@ -133,8 +127,8 @@ TEST(CameraRun, VideoStreamRecordsFramesThatReplayToTheSameTrajectory) {
   EXPECT_GT(rc.report.at("frames_tracked").get<int>(), 50);
   const fs::path frames = s->dir / "cam_out" / "frames";
   EXPECT_EQ(listImages(frames).size(), 60u);
-  EXPECT_EQ(lines(readFile(frames / "times.txt")), 60u);
-  EXPECT_EQ(readFile(frames / "camera.yaml"), readFile(s->camera));
+  EXPECT_EQ(lines(readInputFile(frames / "times.txt")), 60u);
+  EXPECT_EQ(readInputFile(frames / "camera.yaml"), readInputFile(s->camera));
   // The timestamps are the container's (the capture clock of a file).
   DatasetOptions vo;
   vo.camera_override = s->camera;
@@ -145,13 +139,14 @@ TEST(CameraRun, VideoStreamRecordsFramesThatReplayToTheSameTrajectory) {
   // Replayed: the same trajectory and keyframes, byte for byte; the `video:` run too.
   const RunResult rr = runSlam(options("folder:" + frames.string(), s->dir / "replay_out", s->camera));
   ASSERT_EQ(rr.exit_code, 0);
-  const std::string traj = readFile(s->dir / "cam_out" / "trajectory.txt");
+  const std::string traj = readInputFile(s->dir / "cam_out" / "trajectory.txt");
   EXPECT_GT(lines(traj), 50u);
-  EXPECT_EQ(readFile(s->dir / "replay_out" / "trajectory.txt"), traj);
-  EXPECT_EQ(readFile(s->dir / "replay_out" / "keyframes.txt"), readFile(s->dir / "cam_out" / "keyframes.txt"));
+  EXPECT_EQ(readInputFile(s->dir / "replay_out" / "trajectory.txt"), traj);
+  EXPECT_EQ(readInputFile(s->dir / "replay_out" / "keyframes.txt"),
+            readInputFile(s->dir / "cam_out" / "keyframes.txt"));
   const RunResult rv = runSlam(options("video:" + video.string(), s->dir / "video_out", s->camera));
   ASSERT_EQ(rv.exit_code, 0);
-  EXPECT_EQ(readFile(s->dir / "video_out" / "trajectory.txt"), traj);
+  EXPECT_EQ(readInputFile(s->dir / "video_out" / "trajectory.txt"), traj);
 }
 
 // With the NeRF: the stream's colour frames are recorded, and the end-of-run outputs read their frames
@@ -254,7 +249,8 @@ TEST(CameraRun, MaxFramesAndStopRequestEndTheStreamWithItsOutputs) {
       runSlam(options("folder:" + (s->dir / "stop_out" / "frames").string(), s->dir / "replay_out", s->camera));
   ASSERT_EQ(rr.exit_code, 0);
   EXPECT_EQ(rr.report.at("frames").get<int>(), 41);
-  EXPECT_EQ(readFile(s->dir / "replay_out" / "trajectory.txt"), readFile(s->dir / "stop_out" / "trajectory.txt"));
+  EXPECT_EQ(readInputFile(s->dir / "replay_out" / "trajectory.txt"),
+            readInputFile(s->dir / "stop_out" / "trajectory.txt"));
 }
 
 // A device that is not there, a run without --camera, a device that stops delivering, frames of
