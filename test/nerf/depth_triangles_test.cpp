@@ -14,15 +14,7 @@
 namespace nerfslam::nerf {
 namespace {
 
-Camera camera() {
-  Camera c;
-  c.width = 320;
-  c.height = 240;
-  c.fx = c.fy = 250;
-  c.cx = 159.5;
-  c.cy = 119.5;
-  return c;
-}
+Camera camera() { return Camera::pinhole(320, 240, 250, 250, 159.5, 119.5); }
 
 // A road: the plane y = 1.5 (1.5 below the camera, OpenCV axes: y down), 4..25 ahead.
 std::vector<SurfacePoint> roadPoints(int n, uint64_t seed) {
