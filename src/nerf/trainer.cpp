@@ -335,31 +335,28 @@ float Trainer::throughSurfacePoint(size_t view, std::mt19937_64& rng, int* px, i
   const TrainingView& v = views_[view];
   const SE3& T_world_cam = step_poses_[view];
   std::uniform_real_distribution<double> u01(0.0, 1.0);
+  Eigen::Vector2d uv;
+  double distance = 0;
   if (!triangles_[view].empty() && u01(rng) < opt_.depth_triangle_share) {
     const double ua = u01(rng), r1 = u01(rng), r2 = u01(rng);
     const auto s = sampleDepthTriangle(triangles_[view], v.points, v.camera, T_world_cam, ua, r1, r2);
     if (!s) return -1.f;
-    const int x = std::clamp(int(std::lround(s->uv.x())), 0, v.camera.width - 1);
-    const int y = std::clamp(int(std::lround(s->uv.y())), 0, v.camera.height - 1);
-    *px = x;
-    *py = y;
-    *ju = float(s->uv.x() - x);
-    *jv = float(s->uv.y() - y);
+    uv = s->uv;
+    distance = s->distance;
     *weight = s->weight;
-    return float(s->distance * model_.scene.scale);
+  } else {
+    const SurfacePoint& sp = v.points[std::uniform_int_distribution<size_t>(0, v.points.size() - 1)(rng)];
+    const Eigen::Vector3d p_cam = T_world_cam.inverse() * sp.position.cast<double>();
+    if (!v.camera.projectInImage(p_cam, &uv)) return -1.f;
+    distance = p_cam.norm();
+    *weight = sp.weight;
   }
-  const SurfacePoint& sp = v.points[std::uniform_int_distribution<size_t>(0, v.points.size() - 1)(rng)];
-  const Eigen::Vector3d p_cam = T_world_cam.inverse() * sp.position.cast<double>();
-  Eigen::Vector2d uv;
-  if (!v.camera.projectInImage(p_cam, &uv)) return -1.f;
-  const int x = std::clamp(int(std::lround(uv.x())), 0, v.camera.width - 1);
-  const int y = std::clamp(int(std::lround(uv.y())), 0, v.camera.height - 1);
-  *px = x;
-  *py = y;
-  *ju = float(uv.x() - x);
-  *jv = float(uv.y() - y);
-  *weight = sp.weight;
-  return float(p_cam.norm() * model_.scene.scale);
+  // The pixel and the sub-pixel offset that make the ray pass through uv.
+  *px = std::clamp(int(std::lround(uv.x())), 0, v.camera.width - 1);
+  *py = std::clamp(int(std::lround(uv.y())), 0, v.camera.height - 1);
+  *ju = float(uv.x() - *px);
+  *jv = float(uv.y() - *py);
+  return float(distance * model_.scene.scale);
 }
 
 // Density of every sample of the chunk, then colour only where the composite will read it: up to

@@ -224,6 +224,7 @@ struct InputFrame {
   std::size_t index = 0;
   double timestamp = 0;
   cv::Mat image;
+  std::string problem;  // a camera's frame: describeFrameProblem(), found by the reader, not by tracking
 };
 
 // What the reader and the tracking thread share. The failure messages are each written by one
@@ -411,6 +412,7 @@ void readStream(FrameStream& stream, const Camera& camera, SlamSystem& slam, con
     f.timestamp = sf.timestamp;
     // Colour for the NeRF (tracking converts to grey itself), else grey, as readFrames loads them.
     f.image = convertStreamImage(sf.image, sys.nerf.enabled);
+    f.problem = describeFrameProblem(f.image);
     if (!handOver(pipe, std::move(f), ro.realtime, lockstep, slam)) break;
     if (pipe.queued.load() % RunStats::kWindow == 0)
       stats.addWindowSample({currentRssMb(), slam.map().numKeyframes(), slam.map().numPoints()});
@@ -446,7 +448,7 @@ void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clo
     try {
       if (pipe.recording) {  // a camera: the frame reaches tracking, so it is recorded, under its index there
         f->index = pipe.recording->append(f->timestamp, f->image);
-        pipe.image_problems.push_back(describeFrameProblem(f->image));
+        pipe.image_problems.push_back(std::move(f->problem));
       }
       const bool had_map = slam.initialized();
       const FrameRecord rec = slam.trackFrame(f->image, f->timestamp, f->index);
