@@ -177,6 +177,16 @@ static std::string framePath(size_t i) { return fmt::format("{:06d}.png", i); }
 size_t StreamRecording::append(double timestamp, const cv::Mat& image) {
   std::unique_lock<std::mutex> lock(mutex_);
   changed_.wait(lock, [&] { return pending_.size() < kMaxPending || !write_error_.empty(); });
+  return appendLocked(timestamp, image);
+}
+
+std::optional<size_t> StreamRecording::tryAppend(double timestamp, const cv::Mat& image) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  if (pending_.size() >= kMaxPending && write_error_.empty()) return std::nullopt;
+  return appendLocked(timestamp, image);
+}
+
+size_t StreamRecording::appendLocked(double timestamp, const cv::Mat& image) {
   rethrowWriteError();
   const size_t i = stamps_.size();
   stamps_.push_back(timestamp);

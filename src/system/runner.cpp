@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include <fmt/ranges.h>
@@ -243,10 +244,12 @@ struct FramePipe {
   // Stopped by a signal (core/stop_signal.h): the index of the first frame not read, -1 otherwise.
   std::atomic<long long> stopped_at_frame{-1};
   // A camera (readStream): the recording every frame that reaches tracking goes into (the tracking
-  // thread appends it and tracks it under the index it gets), the frames read from the device, and
-  // the tracking thread's word that --max-frames frames were tracked.
+  // thread appends it and tracks it under the index it gets, or drops it when the recording's writer
+  // lags: not_recorded), the frames read from the device, and the tracking thread's word that
+  // --max-frames frames were tracked.
   StreamRecording* recording = nullptr;
   std::atomic<std::size_t> frames_read{0};
+  std::atomic<std::size_t> not_recorded{0};  // dropped by the tracking thread: the recording's writer lagged
   std::atomic<bool> enough{false};
   std::string read_failure, tracking_failure;
   // The tracked poses as tracking made them (before the bundle adjustments that follow), appended by
@@ -447,7 +450,17 @@ void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clo
   while (auto f = pipe.queue.pop()) {
     try {
       if (pipe.recording) {  // a camera: the frame reaches tracking, so it is recorded, under its index there
-        f->index = pipe.recording->append(f->timestamp, f->image);
+        const std::optional<std::size_t> index = pipe.recording->tryAppend(f->timestamp, f->image);
+        if (!index) {
+          // The disk is slower than the camera: the frame is dropped (not recorded, not tracked)
+          // rather than tracking waiting for the PNG writer.
+          if (pipe.not_recorded++ % 100 == 0)
+            spdlog::warn("camera: the recording of {} is {} frames behind; frame dropped ({} so far)",
+                         pipe.recording->folder().string(), StreamRecording::kMaxPending, pipe.not_recorded.load());
+          ++pipe.processed;
+          continue;
+        }
+        f->index = *index;
         pipe.image_problems.push_back(std::move(f->problem));
       }
       const bool had_map = slam.initialized();
@@ -471,7 +484,7 @@ void trackFrames(SlamSystem& slam, const RunOptions& ro, std::size_t frames, Clo
       printProgress(slam, f->index, frames, pipe.processed.load(),
                     std::chrono::duration<double>(Clock::now() - run0).count());
     }
-    if (pipe.recording && ro.max_frames > 0 && pipe.processed.load() >= ro.max_frames) {
+    if (pipe.recording && ro.max_frames > 0 && pipe.recording->size() >= ro.max_frames) {
       pipe.enough = true;  // the frames still queued never reach tracking
       pipe.queue.close();
       break;
@@ -953,6 +966,7 @@ RunResult runSlam(const RunOptions& options) {
     rep["camera"] = {{"device", stream->name()},
                      {"frames_read", pipe.frames_read.load()},
                      {"frames_recorded", recording->size()},
+                     {"frames_dropped_recording_behind", pipe.not_recorded.load()},
                      {"recorded_to", recording->folder().string()}};
     addRunOutput(rep, "frames/");
   }

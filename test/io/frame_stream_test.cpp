@@ -119,5 +119,47 @@ TEST(FrameStream, RecordingReadsBackAsTheIdenticalFolderDataset) {
   EXPECT_NE(e.find("frames: the folder for the camera's frames already holds files"), std::string::npos) << e;
 }
 
+// The tracking thread's tryAppend never waits for the disk: with kMaxPending frames waiting for the
+// PNG writer it records nothing (nullopt), and the frames it did record are numbered without gaps
+// and replay as the folder dataset, in order.
+TEST(FrameStream, RecordingThatFallsBehindDropsInsteadOfWaiting) {
+  test::TempDir dir;
+  const Camera cam = Camera::pinhole(1024, 1024, 800, 800, 511.5, 511.5);
+  saveCameraYaml(cam, dir / "cam.yaml");
+  std::vector<double> accepted;
+  std::vector<int> seeds;
+  size_t dropped = 0;
+  {
+    StreamRecording rec("/dev/video5", dir / "out" / "frames", cam, dir / "cam.yaml");
+    // Noise compresses badly: each 1024x1024 PNG takes the writer milliseconds, appending takes
+    // microseconds, so the backlog fills at once.
+    std::vector<cv::Mat> images;
+    for (int k = 0; k < 4; ++k) images.push_back(test::noiseImage(1024, 1024, 7 + k));
+    for (int i = 0; i < 3 * int(StreamRecording::kMaxPending); ++i) {
+      const double stamp = 100.0 + 0.04 * i;
+      const auto index = rec.tryAppend(stamp, images[size_t(i % 4)]);
+      if (!index) {
+        ++dropped;
+        continue;
+      }
+      EXPECT_EQ(*index, accepted.size());
+      accepted.push_back(stamp);
+      seeds.push_back(i % 4);
+    }
+    EXPECT_GT(dropped, 0u) << "the writer kept up with 192 noise frames appended in a loop";
+    EXPECT_GE(accepted.size(), StreamRecording::kMaxPending);
+    rec.flush();
+  }
+  const auto folder = openDataset("folder:" + (dir / "out" / "frames").string());
+  ASSERT_EQ(folder->size(), accepted.size());
+  for (size_t i = 0; i < accepted.size(); ++i) {
+    EXPECT_EQ(folder->timestamp(i), accepted[i]) << i;
+    EXPECT_EQ(
+        cv::norm(folder->load(i, ImageMode::kGray).image, test::noiseImage(1024, 1024, 7 + seeds[i]), cv::NORM_INF),
+        0.0)
+        << i;
+  }
+}
+
 }  // namespace
 }  // namespace nerfslam

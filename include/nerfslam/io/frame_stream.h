@@ -17,6 +17,7 @@
 #include <filesystem>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -81,8 +82,13 @@ class StreamRecording : public Dataset {
                   const std::filesystem::path& camera_yaml);
   ~StreamRecording() override;
 
-  // Records the next frame and returns its index. Throws the Error of a write that failed.
+  // Records the next frame and returns its index. Throws the Error of a write that failed. Waits
+  // while kMaxPending frames wait for the writer.
   size_t append(double timestamp, const cv::Mat& image);
+  // As append, but never waits: nullopt (nothing recorded) while kMaxPending frames wait for the
+  // writer, i.e. while the disk is slower than the camera (the tracking thread's call: it must not
+  // wait for the disk, and drops the frame instead).
+  std::optional<size_t> tryAppend(double timestamp, const cv::Mat& image);
   // Waits until every frame is on disk and writes times.txt. Throws the Error of a write that failed.
   void flush();
   const std::filesystem::path& folder() const { return folder_; }
@@ -100,7 +106,8 @@ class StreamRecording : public Dataset {
  private:
   void writerLoop();
   void writeTimes(const std::vector<double>& stamps) const;
-  void rethrowWriteError() const;  // under mutex_
+  void rethrowWriteError() const;                               // under mutex_
+  size_t appendLocked(double timestamp, const cv::Mat& image);  // under mutex_, room checked
 
   std::filesystem::path device_, folder_;
   Camera camera_;
