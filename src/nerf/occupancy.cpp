@@ -2,7 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <random>
+#include <cstring>
 
 #include "nerfslam/core/error.h"
 
@@ -89,26 +89,20 @@ uint64_t gatherEvenBits(uint64_t x) {
 
 }  // namespace
 
-void OccupancyGrid::sortCellIndices(std::vector<uint32_t>& cells) {
-  // LSD radix sort in two passes of 12 bits: indices are below 8 cascades * 2^21 cells = 2^24.
-  static_assert(size_t(kCells) * 8 <= (size_t(1) << 24), "cell indices must fit 24 bits");
-  std::vector<uint32_t> tmp(cells.size());
-  for (int shift = 0; shift < 24; shift += 12) {
-    std::vector<uint32_t> start(4097, 0u);
-    for (uint32_t c : cells) ++start[((c >> shift) & 4095u) + 1];
-    for (size_t d = 1; d < start.size(); ++d) start[d] += start[d - 1];
-    for (uint32_t c : cells) tmp[start[(c >> shift) & 4095u]++] = c;
-    cells.swap(tmp);
-  }
-}
-
 void OccupancyGrid::rebuildBits() {
-  // 64 consecutive values make one word (a loop the compiler vectorises).
+  // 64 consecutive values make one word, 8 at a time: eight 0/1 bytes (compares the compiler
+  // vectorises) gathered into 8 bits by one multiplication (byte i lands on bit 56 + i, no carries).
   const float t = threshold_;
   for (size_t w = 0; w < bits_.size(); ++w) {
     const float* v = values_.data() + 64 * w;
     uint64_t b = 0;
-    for (int k = 0; k < 64; ++k) b |= uint64_t(v[k] > t) << k;
+    for (int g = 0; g < 8; ++g) {
+      uint8_t m[8];
+      for (int k = 0; k < 8; ++k) m[k] = uint8_t(v[8 * g + k] > t);
+      uint64_t x;
+      std::memcpy(&x, m, 8);
+      b |= ((x * 0x0102040810204080ull) >> 56) << (8 * g);
+    }
     bits_[w] = b;
   }
   // Max-pool finer cascades into the overlapping centre of the next coarser one: cell (x, y, z) of
@@ -161,17 +155,48 @@ void OccupancyGrid::rebuildCoarse() {
   }
 }
 
+namespace {
+
+// splitmix64's finaliser: a counter-based generator, so the draws of pick k are a function of the
+// seed and k alone (no sequential state to share between picks or threads).
+uint64_t mix64(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+// 16 bits of h (from bit `shift`) as a float in [0, 1): with a cell index below 2^7 the sum x + u
+// holds in a float's 24 bits exactly, so a point drawn in a cell never rounds into the next one.
+float unit16(uint64_t h, int shift) { return float((h >> shift) & 0xffffu) * (1.f / 65536.f); }
+
+// n stratified draws over [0, count): draw k is uniform in [k count / n, (k + 1) count / n), so the
+// draws come out sorted, spread evenly, and (for n <= count) without repeats.
+void stratifiedRanks(uint64_t count, int64_t n, uint64_t seed, std::vector<uint64_t>* out) {
+  out->resize(size_t(n));
+  const double stride = double(count) / double(n);
+  for (int64_t k = 0; k < n; ++k) {
+    const double u = double(mix64(seed + uint64_t(k)) >> 11) * (1.0 / 9007199254740992.0);
+    (*out)[size_t(k)] = std::min<uint64_t>(count - 1, uint64_t((double(k) + u) * stride));
+  }
+}
+
+}  // namespace
+
 void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
   const size_t total = values_.size();
-  std::mt19937_64 rng(prm.seed);
-  std::uniform_real_distribution<float> u01(0.f, 1.f);
-
   const int block = prm.uniform_cells < 0 ? prm.sweep_block : 1;
   if (block < 1 || block > kRes || (block & (block - 1)) != 0)
     fail("occupancy grid: sweep_block must be a power of two in [1, {}], got {}", kRes, block);
+  const uint64_t seed_uniform = mix64(prm.seed), seed_occupied = mix64(prm.seed ^ 0x6A09E667F3BCC909ull),
+                 seed_position = mix64(prm.seed ^ 0xBB67AE8584CAA73Bull);
 
-  // Cells to sample this round (in a block sweep, each block's lowest corner cell stands for it).
-  std::vector<uint32_t> cells;  // global index mip*kCells + cell
+  // Cells to sample this round (global index mip*kCells + cell; in a block sweep, each block's
+  // lowest corner cell stands for it), in cell order: neighbouring queries then share hash-table
+  // lines, where random order makes every level's lookups miss the cache. The picks are stratified
+  // (one in each of uniform_cells equal runs of cells, one in each of occupied_cells equal runs of
+  // the occupied cells), so they come sorted, cover the grid evenly and repeat no cell.
+  std::vector<uint32_t> cells;
   if (prm.uniform_cells < 0) {
     const int nb = kRes / block;
     cells.reserve(size_t(cascades_) * size_t(nb) * size_t(nb) * size_t(nb));
@@ -180,34 +205,36 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
         for (int y = 0; y < kRes; y += block)
           for (int x = 0; x < kRes; x += block) cells.push_back(uint32_t(mip) * uint32_t(kCells) + cellIndex(x, y, z));
   } else {
-    std::uniform_int_distribution<uint32_t> pick(0, uint32_t(total - 1));
-    cells.reserve(size_t(prm.uniform_cells + prm.occupied_cells));
-    for (int64_t i = 0; i < prm.uniform_cells; ++i) cells.push_back(pick(rng));
-  }
-  if (prm.occupied_cells > 0) {
-    std::vector<uint32_t> occ;
-    for (size_t w = 0; w < bits_.size(); ++w) {
-      uint64_t b = bits_[w];
-      while (b) {
-        const int k = __builtin_ctzll(b);
-        occ.push_back(uint32_t(w * 64 + size_t(k)));
-        b &= b - 1;
+    std::vector<uint64_t> ranks;
+    stratifiedRanks(total, prm.uniform_cells, seed_uniform, &ranks);
+    cells.reserve(size_t(prm.uniform_cells + std::max<int64_t>(0, prm.occupied_cells)));
+    for (uint64_t r : ranks) cells.push_back(uint32_t(r));
+    uint64_t occupied = 0;
+    for (uint64_t w : bits_) occupied += uint64_t(__builtin_popcountll(w));
+    if (prm.occupied_cells > 0 && occupied > 0) {
+      // The ranks among the occupied cells, then the cells: a walk over the words, counting bits.
+      stratifiedRanks(occupied, prm.occupied_cells, seed_occupied, &ranks);
+      const size_t mid = cells.size();
+      size_t w = 0;
+      uint64_t before = 0;  // occupied cells in the words before w
+      int in_word = __builtin_popcountll(bits_[0]);
+      for (uint64_t r : ranks) {
+        while (before + uint64_t(in_word) <= r) {
+          before += uint64_t(in_word);
+          in_word = __builtin_popcountll(bits_[++w]);
+        }
+        uint64_t b = bits_[w];
+        for (uint64_t j = r - before; j > 0; --j) b &= b - 1;
+        cells.push_back(uint32_t(w * 64 + size_t(__builtin_ctzll(b))));
       }
-    }
-    if (!occ.empty()) {
-      std::uniform_int_distribution<size_t> pick(0, occ.size() - 1);
-      for (int64_t i = 0; i < prm.occupied_cells; ++i) cells.push_back(occ[pick(rng)]);
+      std::inplace_merge(cells.begin(), cells.begin() + std::ptrdiff_t(mid), cells.end());
     }
   }
-
-  // Evaluate the picks in cell order (sorted: the picks are a multiset of cell indices):
-  // neighbouring queries then share hash-table lines, where random order makes every level's
-  // lookups miss the cache. The positions stay a pure function of the seed.
-  if (prm.uniform_cells >= 0 && !cells.empty()) sortCellIndices(cells);
 
   // values = max(values * decay, the largest density sampled in the cell): the decay first, then
   // each sample's max (max is exact, so the order does not change a bit).
-  for (float& v : values_) v *= prm.decay;
+  const float decay = prm.decay;  // a local: prm could alias values_, which stops the loop's vectorisation
+  for (float& v : values_) v *= decay;
   constexpr size_t kChunk = 1 << 16;
   std::vector<float> xyz(3 * kChunk), sigma(kChunk);
   for (size_t begin = 0; begin < cells.size(); begin += kChunk) {
@@ -217,10 +244,11 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
       const int mip = int(g / kCells);
       const uint32_t c = g % kCells;
       const int x = int(c % kRes), y = int((c / kRes) % kRes), z = int(c / (kRes * kRes));
-      const float s = std::ldexp(1.f, mip);
-      xyz[3 * k + 0] = ((x + block * u01(rng)) / kRes - 0.5f) * s + 0.5f;
-      xyz[3 * k + 1] = ((y + block * u01(rng)) / kRes - 0.5f) * s + 0.5f;
-      xyz[3 * k + 2] = ((z + block * u01(rng)) / kRes - 0.5f) * s + 0.5f;
+      const float s = float(1u << mip), fb = float(block);
+      const uint64_t h = mix64(seed_position + begin + k);  // a random point in the cell (block)
+      xyz[3 * k + 0] = ((float(x) + fb * unit16(h, 0)) / kRes - 0.5f) * s + 0.5f;
+      xyz[3 * k + 1] = ((float(y) + fb * unit16(h, 16)) / kRes - 0.5f) * s + 0.5f;
+      xyz[3 * k + 2] = ((float(z) + fb * unit16(h, 32)) / kRes - 0.5f) * s + 0.5f;
     }
     density(xyz.data(), int(n), sigma.data());
     for (size_t k = 0; k < n; ++k) {
@@ -242,8 +270,11 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
           }
     }
   }
-  double sum = 0;
-  for (size_t i = 0; i < size_t(kCells); ++i) sum += values_[i];
+  // The mean of cascade 0 in eight running sums (independent additions pipeline; a fixed order).
+  double part[8] = {};
+  for (size_t i = 0; i < size_t(kCells); i += 8)
+    for (int j = 0; j < 8; ++j) part[j] += double(values_[i + size_t(j)]);
+  const double sum = ((part[0] + part[1]) + (part[2] + part[3])) + ((part[4] + part[5]) + (part[6] + part[7]));
   threshold_ = std::min(prm.threshold_cap, float(sum / kCells));
   carveSegments(prm.keep_empty);
   pinCells(prm.keep_occupied);
@@ -287,7 +318,7 @@ void OccupancyGrid::carveSegments(const std::vector<std::pair<Eigen::Vector3f, E
 void OccupancyGrid::pinCells(const std::vector<Eigen::Vector3f>& points) {
   // The cells' values are raised just over the threshold (not only their bits set), so the values
   // alone (a saved model) give the same occupancy.
-  std::vector<uint32_t> pinned;
+  const float above = std::nextafter(threshold_, INFINITY);
   for (const Eigen::Vector3f& p : points) {
     if (!p.allFinite()) continue;
     const int mip = mipFromPos(p);
@@ -305,11 +336,10 @@ void OccupancyGrid::pinCells(const std::vector<Eigen::Vector3f>& points) {
         for (int dx = -1; dx <= 1; ++dx) {
           const int x = c[0] + dx, y = c[1] + dy, z = c[2] + dz;
           if (x < 0 || y < 0 || z < 0 || x >= kRes || y >= kRes || z >= kRes) continue;
-          pinned.push_back(uint32_t(mip) * uint32_t(kCells) + cellIndex(x, y, z));
+          float& f = values_[size_t(mip) * kCells + cellIndex(x, y, z)];
+          f = std::max(f, above);
         }
   }
-  const float above = std::nextafter(threshold_, INFINITY);
-  for (uint32_t i : pinned) values_[i] = std::max(values_[i], above);
 }
 
 }  // namespace nerfslam::nerf

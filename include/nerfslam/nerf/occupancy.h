@@ -37,11 +37,13 @@ class OccupancyGrid {
   static int cascadesForAabbScale(double aabb_scale);
 
   struct UpdateParams {
-    int64_t uniform_cells = -1;  // cells sampled uniformly at random (with repeats); -1: every cell once
+    // Cells sampled uniformly: one random cell in each of uniform_cells equal runs of the grid's cells
+    // (stratified: even coverage, no repeats); -1: every cell once.
+    int64_t uniform_cells = -1;
     // With uniform_cells -1: cubes of sweep_block^3 cells share one sample (a random point in the
     // cube), so the sweep costs 1/sweep_block^3 of the queries. A power of two in [1, kRes].
     int sweep_block = 1;
-    int64_t occupied_cells = 0;  // extra samples among the currently occupied cells
+    int64_t occupied_cells = 0;  // extra samples among the currently occupied cells (stratified likewise)
     float decay = 0.95f;
     float threshold_cap = 0.01f;  // threshold = min(threshold_cap, mean value of cascade 0)
     uint64_t seed = 0;            // the sample positions are a pure function of this seed
@@ -110,7 +112,6 @@ class OccupancyGrid {
   void rebuildCoarse();
   void pinCells(const std::vector<Eigen::Vector3f>& points);
   void carveSegments(const std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>>& segments);
-  static void sortCellIndices(std::vector<uint32_t>& cells);
 
   int cascades_;
   float threshold_ = 0;
