@@ -29,7 +29,8 @@
 // the normal; the first occupied voxel along the rays against the ground truth's; the log-odds of our
 // true and false occupied voxels; --dump FILE writes the rays), --true-floor 1 (the 2D grid on z = 0
 // instead of the floor found), --column x,y (one column's voxels and its 2D cell), --fp 1, --histogram 1,
-// --ascii 1; the extraction's options --opacity, --thickness, --stop, --min-views, --samples.
+// --ascii 1; the extraction's options --opacity, --thickness, --stop, --min-views, --samples,
+// --min-cluster.
 // The baseline: the same, from the sparse map points only (a voxel with a point is occupied; the
 // rays from each keyframe to the points in its view, short of the point, are free), as an OctoMap
 // built from a sparse SLAM's points would be.
@@ -342,6 +343,7 @@ int main(int argc, char** argv) {
     vo.pixel_stride = stride;
     if (args.count("--opacity")) vo.occupied_opacity = std::stod(args["--opacity"]);
     if (args.count("--thickness")) vo.thickness_voxels = std::stoi(args["--thickness"]);
+    if (args.count("--min-cluster")) vo.min_cluster_voxels = std::stoi(args["--min-cluster"]);
     if (args.count("--stop")) vo.stop_transmittance = std::stod(args["--stop"]);
     if (args.count("--min-views")) vo.min_hit_views = std::stoi(args["--min-views"]);
     if (args.count("--samples")) vo.samples_per_axis = std::stoi(args["--samples"]);
