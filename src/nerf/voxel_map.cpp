@@ -25,8 +25,8 @@ constexpr int kOctomapKeyOffset = 32768;
 
 double bytesPerVoxel(int threads) {
   // density (float), log-odds (float), state (byte), per-thread hits, misses, last view and views while
-  // carving (4 x u32)
-  return 4.0 + 4.0 + 1.0 + 16.0 * double(std::max(1, threads));
+  // carving (4 x u32), the speckle pass's visited flag (byte)
+  return 4.0 + 4.0 + 1.0 + 1.0 + 16.0 * double(std::max(1, threads));
 }
 
 }  // namespace
@@ -39,6 +39,7 @@ void validate(const VoxelMapOptions& o) {
   if (!(o.stop_transmittance > 0 && o.stop_transmittance < 1))
     fail("occupancy: stop_transmittance must be in (0, 1) (is {})", o.stop_transmittance);
   if (o.thickness_voxels < 0) fail("occupancy: thickness_voxels must be >= 0");
+  if (o.min_cluster_voxels < 1) fail("occupancy: min_cluster_voxels must be >= 1");
   if (o.samples_per_axis < 1 || o.samples_per_axis > 8) fail("occupancy: samples_per_axis must be in [1, 8]");
   if (o.pixel_stride < 1) fail("occupancy: pixel_stride must be >= 1");
   if (o.min_hit_views < 1) fail("occupancy: min_hit_views must be >= 1");
@@ -352,6 +353,49 @@ void VoxelMapper::carve(const std::vector<PosedCamera>& views) {
     const float L = std::clamp(float(h) * lh + float(m) * lm, lmin, lmax);
     map_.log_odds[i] = L;
     map_.state[i] = L > 0 ? VoxelMap::kOccupied : VoxelMap::kFree;
+  }
+  if (options_.min_cluster_voxels > 1) removeSpeckles(misses);
+}
+
+void VoxelMapper::removeSpeckles(const std::vector<std::vector<uint32_t>>& misses) {
+  // Occupied clusters (26-connected) smaller than min_cluster_voxels: a floater the field explains a
+  // few views with, not an obstacle at this resolution. Their voxels keep only their misses.
+  const size_t total = map_.size();
+  const Eigen::Vector3i dims = map_.dims;
+  const float lm = float(logit(options_.prob_miss)), lmin = float(logit(options_.clamp_min));
+  std::vector<uint8_t> done(total, 0);
+  std::vector<size_t> cluster, stack;
+  for (size_t s = 0; s < total; ++s) {
+    if (done[s] || map_.state[s] != VoxelMap::kOccupied) continue;
+    cluster.clear();
+    stack.assign(1, s);
+    done[s] = 1;
+    bool large = false;
+    while (!stack.empty()) {
+      const size_t i = stack.back();
+      stack.pop_back();
+      cluster.push_back(i);
+      if (int(cluster.size()) >= options_.min_cluster_voxels) large = true;
+      const int x = int(i % size_t(dims.x())), y = int(i / size_t(dims.x()) % size_t(dims.y())),
+                z = int(i / (size_t(dims.x()) * size_t(dims.y())));
+      for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int nx = x + dx, ny = y + dy, nz = z + dz;
+            if (nx < 0 || ny < 0 || nz < 0 || nx >= dims.x() || ny >= dims.y() || nz >= dims.z()) continue;
+            const size_t j = map_.index(nx, ny, nz);
+            if (done[j] || map_.state[j] != VoxelMap::kOccupied) continue;
+            done[j] = 1;
+            stack.push_back(j);
+          }
+    }
+    if (large) continue;
+    for (size_t i : cluster) {
+      uint64_t m = 0;
+      for (const auto& M : misses) m += M[i];
+      map_.log_odds[i] = m ? std::max(float(m) * lm, lmin) : 0.f;
+      map_.state[i] = m ? VoxelMap::kFree : VoxelMap::kUnknown;
+    }
   }
 }
 

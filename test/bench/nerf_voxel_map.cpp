@@ -24,6 +24,13 @@
 //                        whenever the ground truth has one
 //   timing               the full extraction (density and rays), an incremental update (density of
 //                        --budget-fraction of the voxels, then the rays), wall time, median of 3
+// Diagnostics: --surface-errors 1 (where the NeRF puts the surfaces: along the keyframes' true rays, the
+// depth where its transmittance falls to 0.5 against the scene's triangles, by orientation, signed along
+// the normal; the first occupied voxel along the rays against the ground truth's; the log-odds of our
+// true and false occupied voxels; --dump FILE writes the rays), --true-floor 1 (the 2D grid on z = 0
+// instead of the floor found), --column x,y (one column's voxels and its 2D cell), --fp 1, --histogram 1,
+// --ascii 1; the extraction's options --opacity, --thickness, --stop, --min-views, --samples,
+// --min-cluster.
 // The baseline: the same, from the sparse map points only (a voxel with a point is occupied; the
 // rays from each keyframe to the points in its view, short of the point, are free), as an OctoMap
 // built from a sparse SLAM's points would be.
@@ -39,8 +46,10 @@
 #include <string>
 #include <vector>
 
+#include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "nerfslam/core/atomic_file.h"
 #include "nerfslam/core/camera.h"
 #include "nerfslam/core/parse.h"
 #include "nerfslam/eval/trajectory_metrics.h"
@@ -208,6 +217,51 @@ Scores score(const std::vector<uint8_t>& occ, const std::vector<uint8_t>& free, 
   return s;
 }
 
+// The scene's triangles with their unit normals, for exact ray casts.
+struct Triangle {
+  Eigen::Vector3d a, b, c, n;
+};
+std::vector<Triangle> sceneTriangles(const Scene& scene) {
+  std::vector<Triangle> out;
+  for (const Mesh& m : scene.meshes) {
+    const size_t n = m.indices.empty() ? m.vertices.size() : m.indices.size();
+    for (size_t k = 0; k + 2 < n; k += 3) {
+      Eigen::Vector3d p[3];
+      for (int j = 0; j < 3; ++j) {
+        const auto& v = m.vertices[m.indices.empty() ? k + size_t(j) : m.indices[k + size_t(j)]];
+        p[j] = Eigen::Vector3d(v.x, v.y, v.z);
+      }
+      const Eigen::Vector3d nrm = (p[1] - p[0]).cross(p[2] - p[0]);
+      if (nrm.norm() < 1e-12) continue;
+      out.push_back({p[0], p[1], p[2], nrm.normalized()});
+    }
+  }
+  return out;
+}
+// The nearest triangle along the ray (Moller-Trumbore); false when none.
+bool castRay(const std::vector<Triangle>& tris, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double* t_out,
+             Eigen::Vector3d* n_out) {
+  double best = 1e300;
+  for (const Triangle& t : tris) {
+    const Eigen::Vector3d e1 = t.b - t.a, e2 = t.c - t.a, pv = d.cross(e2);
+    const double det = e1.dot(pv);
+    if (std::abs(det) < 1e-12) continue;
+    const Eigen::Vector3d tv = o - t.a;
+    const double u = tv.dot(pv) / det;
+    if (u < 0 || u > 1) continue;
+    const Eigen::Vector3d qv = tv.cross(e1);
+    const double v = d.dot(qv) / det;
+    if (v < 0 || u + v > 1) continue;
+    const double tt = e2.dot(qv) / det;
+    if (tt > 1e-6 && tt < best) {
+      best = tt;
+      *n_out = t.n;
+    }
+  }
+  *t_out = best;
+  return best < 1e299;
+}
+
 // Breadth-first search over 4-connected free cells.
 bool pathExists(const std::vector<int8_t>& cells, int w, int h, int a, int b) {
   if (cells[size_t(a)] != 0 || cells[size_t(b)] != 0) return false;
@@ -289,6 +343,7 @@ int main(int argc, char** argv) {
     vo.pixel_stride = stride;
     if (args.count("--opacity")) vo.occupied_opacity = std::stod(args["--opacity"]);
     if (args.count("--thickness")) vo.thickness_voxels = std::stoi(args["--thickness"]);
+    if (args.count("--min-cluster")) vo.min_cluster_voxels = std::stoi(args["--min-cluster"]);
     if (args.count("--stop")) vo.stop_transmittance = std::stod(args["--stop"]);
     if (args.count("--min-views")) vo.min_hit_views = std::stoi(args["--min-views"]);
     if (args.count("--samples")) vo.samples_per_axis = std::stoi(args["--samples"]);
@@ -296,6 +351,7 @@ int main(int argc, char** argv) {
     Eigen::AlignedBox3d bounds;
     std::vector<double> t_full;
     nerf::VoxelMap map;
+    std::vector<float> mapper_density;
     for (int r = 0; r < 3; ++r) {
       const auto t0 = Clock::now();
       bounds = nerf::observedBounds(src, views, vo);
@@ -303,7 +359,10 @@ int main(int argc, char** argv) {
       mapper.updateDensity(src, -1);
       mapper.carve(views);
       t_full.push_back(seconds(t0));
-      if (r == 0) map = mapper.map();
+      if (r == 0) {
+        map = mapper.map();
+        mapper_density = mapper.density();
+      }
     }
     std::vector<double> t_inc, t_inc_density;
     {
@@ -396,6 +455,124 @@ int main(int argc, char** argv) {
         if (occ[i]) ++h[dist[i]];
       for (const auto& [d, c] : h) std::printf("  occupied at %2d voxels from the ground truth: %d\n", d, c);
     }
+
+    if (args.count("--column")) {  // one column of the map: state and density by height
+      const auto xy = parseNumberList(args["--column"], "--column");
+      for (int z = 0; z < g.dims.z(); ++z) {
+        Eigen::Vector3i v;
+        const double h = (g.origin.z() + z + 0.5) * res;
+        if (!g.at({xy[0], xy[1], h}, &v)) continue;
+        const size_t i = g.index(v);
+        std::printf("  z %.3f: ours %d (L %+.2f, sigma %.1f) gt %d seen %d gt_free %d\n", h, int(map.state[i]),
+                    map.log_odds[i], mapper_density.empty() ? 0.f : mapper_density[i], int(gt_occ[i]), int(seen[i]),
+                    int(gt_free[i]));
+      }
+    }
+    if (args.count("--surface-errors")) {
+      // Where the NeRF puts the surfaces: along the keyframes' ground-truth rays, the depth at which the
+      // field's transmittance falls below 0.5 (fine steps) against the exact depth of the scene's
+      // triangles, as a signed distance along the surface's normal (positive: behind the true
+      // surface), by the surface's orientation; and where in its voxel the true surface lies.
+      const std::vector<Triangle> tris = sceneTriangles(scene);
+      std::string dump;  // --dump: one line per ray (class, origin, direction, true depth, ours, normal)
+      std::map<std::string, std::map<int, int>> hist;
+      std::map<std::string, std::vector<double>> errs;
+      const double step = res / 10;
+      std::vector<float> pts, sig;
+      for (const auto& v : gt_views) {
+        const Eigen::Matrix3d R = v.T_world_cam.rotationMatrix();
+        const Eigen::Vector3d o = v.T_world_cam.translation();
+        for (int y = stride / 2; y < cam.height; y += stride)
+          for (int x = stride / 2; x < cam.width; x += stride) {
+            const Eigen::Vector3d d = (R * cam.unproject(Eigen::Vector2d(x, y))).normalized();
+            double tt = 0;
+            Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
+            if (!castRay(tris, o, d, &tt, &n)) continue;
+            const int ns = int((tt + 0.5) / step);
+            pts.resize(3 * size_t(ns));
+            sig.resize(size_t(ns));
+            for (int k = 0; k < ns; ++k) {
+              const Eigen::Vector3d p = o + (k + 0.5) * step * d;
+              pts[3 * size_t(k)] = float(p.x());
+              pts[3 * size_t(k) + 1] = float(p.y());
+              pts[3 * size_t(k) + 2] = float(p.z());
+            }
+            src.density(pts.data(), size_t(ns), sig.data());
+            double tau = 0, tm = -1;
+            for (int k = 0; k < ns && tm < 0; ++k) {
+              const double dt = sig[size_t(k)] * step;
+              if (tau + dt >= std::log(2.0)) tm = (k + (std::log(2.0) - tau) / dt) * step;
+              tau += dt;
+            }
+            const double c = std::abs(d.dot(n));
+            const Eigen::Vector3d hp = o + tt * d;
+            const std::string cls = std::abs(n.z()) > 0.9 ? (hp.z() < 0.05 ? "floor"
+                                                             : n.z() < 0   ? "ceiling"
+                                                                           : "tops")
+                                                          : "walls";
+            if (tm < 0) {
+              ++hist[cls][999];
+              continue;
+            }
+            const double e = (tm - tt) * c;
+            errs[cls].push_back(e);
+            if (args.count("--dump"))
+              dump += fmt::format("{} {:.5f} {:.5f} {:.5f} {:.5f} {:.5f} {:.5f} {:.5f} {:.5f} {:.5f} {:.5f} {:.5f}\n",
+                                  cls, o.x(), o.y(), o.z(), d.x(), d.y(), d.z(), tt, tm, n.x(), n.y(), n.z());
+            errs["all"].push_back(e);
+            ++hist[cls][int(std::floor(e / 0.01))];
+            ++hist["all"][int(std::floor(e / 0.01))];
+          }
+      }
+      if (args.count("--dump")) writeStringAtomic(args["--dump"], dump);
+      for (auto& [cls, e] : errs) {
+        std::sort(e.begin(), e.end());
+        auto q = [&](double f) { return e[size_t(f * double(e.size() - 1))]; };
+        std::printf(
+            "surface error %-8s %6zu rays: median %+.4f m, 10%% %+.4f, 90%% %+.4f, |e|<1cm %.3f, no surface %d\n",
+            cls.c_str(), e.size(), q(0.5), q(0.1), q(0.9),
+            double(std::count_if(e.begin(), e.end(), [](double a) { return std::abs(a) < 0.01; })) / double(e.size()),
+            hist[cls][999]);
+        std::string line;
+        for (int b = -6; b < 6; ++b) line += fmt::format(" {:+d}cm:{}", b, hist[cls][b]);
+        std::printf("   %s\n", line.c_str());
+      }
+      // Where the current carving stops: the voxel offset, along the ray, of our first occupied voxel
+      // from the first ground-truth one.
+      std::map<int, int> off;
+      for (const auto& v : gt_views) {
+        const Eigen::Matrix3d R = v.T_world_cam.rotationMatrix();
+        for (int y = stride / 2; y < cam.height; y += stride)
+          for (int x = stride / 2; x < cam.width; x += stride) {
+            const Eigen::Vector3d d = (R * cam.unproject(Eigen::Vector2d(x, y))).normalized();
+            int k = 0, kg = -1, ko = -1;
+            march(g, v.T_world_cam.translation(), d, 1e9, [&](size_t i) {
+              if (kg < 0 && gt_occ[i]) kg = k;
+              if (ko < 0 && map.state[i] == nerf::VoxelMap::kOccupied) ko = k;
+              ++k;
+              return kg < 0 || ko < 0;
+            });
+            ++off[kg < 0 ? 99 : ko < 0 ? 98 : std::clamp(ko - kg, -5, 5)];
+          }
+      }
+      std::string line;
+      for (const auto& [o, c] : off) line += fmt::format(" {}:{}", o, c);
+      std::map<int, std::pair<int, int>> lh;  // log-odds of our occupied voxels: in the ground truth, not
+      for (size_t i = 0; i < g.size(); ++i)
+        if (occ[i]) (gt_occ[i] ? lh[int(map.log_odds[i] * 2)].first : lh[int(map.log_odds[i] * 2)].second)++;
+      for (const auto& [l, c] : lh) std::printf("  log-odds %.1f: %d true, %d false\n", l / 2.0, c.first, c.second);
+      size_t f_occ = 0, f_unk = 0, f_all = 0;
+      for (size_t i = 0; i < g.size(); ++i)
+        if (gt_free[i]) {
+          ++f_all;
+          f_occ += map.state[i] == nerf::VoxelMap::kOccupied;
+          f_unk += map.state[i] == nerf::VoxelMap::kUnknown;
+        }
+      std::printf("ground-truth free voxels along the rays: %zu, ours occupied %zu, unknown %zu\n", f_all, f_occ,
+                  f_unk);
+      std::printf("first occupied voxel along the rays minus the first ground-truth one (98 none of ours):%s\n",
+                  line.c_str());
+    }
     const Scores ours = score(occ, fr, gt_occ, seen, gt_free, g);
     const Scores base = score(b_occ, b_free, gt_occ, seen, gt_free, g);
     std::printf("ground truth: %zu occupied voxels, %zu seen by the keyframes, %zu free along their rays\n",
@@ -418,7 +595,8 @@ int main(int argc, char** argv) {
       }
       for (const auto& [z, c] : hz) std::printf("  z %6.2f: ours %6d, ground truth %6d\n", z * res, c.first, c.second);
     }
-    const nerf::FloorPlane floor = nerf::detectFloor(map, views);
+    nerf::FloorPlane floor = nerf::detectFloor(map, views);
+    if (args.count("--true-floor")) floor = nerf::FloorPlane();  // z = 0: the 2D figures without the floor's error
     const nerf::GridProjection ours2d = nerf::projectToGrid(map, floor, band[0], band[1]);
     std::printf("floor found (%s): normal (%.4f, %.4f, %.4f), height %.4f m (ground truth: (0, 0, 1), 0), %d voxels\n",
                 floor.method.c_str(), floor.normal.x(), floor.normal.y(), floor.normal.z(), -floor.offset,
@@ -448,6 +626,7 @@ int main(int argc, char** argv) {
         if (cx >= 0 && cy >= 0 && cx < ours2d.grid.width && cy < ours2d.grid.height)
           our2[size_t(x + W * y)] = ours2d.grid.at(cx, cy);
       }
+    size_t gt_occ_ours_free = 0, gt_occ_ours_unknown = 0, ours_occ_gt_free = 0;
     size_t inter = 0, uni = 0, inter_tol = 0, our_occ = 0, our_free = 0, our_unknown = 0, n_observed = 0;
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x) {
@@ -470,12 +649,24 @@ int main(int argc, char** argv) {
           return false;
         };
         if ((a && near(gt2)) || (b && near(our2))) ++inter_tol;
+        if (b && our2[i] == 0) ++gt_occ_ours_free;
+        if (b && our2[i] == -1) ++gt_occ_ours_unknown;
+        if (a && !b) ++ours_occ_gt_free;
       }
     std::printf(
         "2D grid, band [%.2f, %.2f] m, on the %zu of %d x %d cells the keyframes observe: %zu occupied, %zu "
         "free, %zu unknown; IoU of the occupied cells %.3f (tolerance 1 cell: %.3f)\n",
         band[0], band[1], n_observed, W, H, our_occ, our_free, our_unknown, uni ? double(inter) / double(uni) : 0.0,
         uni ? double(inter_tol) / double(uni) : 0.0);
+    std::printf(
+        "2D cells: ground truth occupied and ours free %zu, unknown %zu; ours occupied and ground truth free %zu\n",
+        gt_occ_ours_free, gt_occ_ours_unknown, ours_occ_gt_free);
+    if (args.count("--column")) {
+      const auto xy = parseNumberList(args["--column"], "--column");
+      const int x = int(std::floor((xy[0] - x0) / res)), y = int(std::floor((xy[1] - y0) / res));
+      std::printf("column's 2D cell (%d, %d): ours %d, ground truth %d, observed %d\n", x, y, our2[size_t(x + W * y)],
+                  gt2[size_t(x + W * y)], observed[size_t(x + W * y)]);
+    }
     if (args.count("--ascii"))
       for (int y = H - 1; y >= 0; y -= 2) {
         for (int x = 0; x < W; ++x) {

@@ -18,6 +18,9 @@
 //   3. Log-odds, as OctoMap's sensor model: L = hits * logit(prob_hit) + misses * logit(prob_miss),
 //      clamped to [logit(clamp_min), logit(clamp_max)]. Occupied when L > 0, free when L <= 0 with
 //      evidence, unknown without evidence (no ray reached it).
+//   4. Speckles: an occupied cluster (26-connected) of fewer than min_cluster_voxels voxels keeps only
+//      its misses (free with them, else unknown): the field's small floaters, which block a planner's
+//      paths, not obstacles at this resolution (a 5 cm post 1 m tall is 20 voxels).
 // Coordinates: the output frame, the model's world frame mapped by T_out_world (a Sim(3): e.g. the
 // ground-truth alignment of a monocular map, which makes it metric). Voxels are aligned to multiples
 // of the resolution from the frame's origin, as OctoMap's keys are, so each voxel is one OctoMap leaf.
@@ -59,6 +62,7 @@ struct VoxelMapOptions {
   double occupied_opacity = 0.5;    // a voxel is a surface when 1 - exp(-sigma * resolution) >= this
   double stop_transmittance = 0.5;  // a ray stops where its transmittance falls below this
   int thickness_voxels = 1;         // voxels behind the surface marked occupied
+  int min_cluster_voxels = 4;       // occupied clusters smaller than this are dropped (speckles)
   int samples_per_axis = 2;         // density samples per voxel along each axis
   int pixel_stride = 8;             // one ray per pixel_stride^2 pixels of each view
   int min_hit_views = 2;            // hits count only from a voxel hit by rays of this many views
@@ -76,6 +80,8 @@ struct VoxelMapOptions {
       check::range(1e-3, 0.999));
     v("thickness_voxels", thickness_voxels, "Voxels behind a surface along each ray that are marked occupied",
       check::range(0, 100));
+    v("min_cluster_voxels", min_cluster_voxels,
+      "Occupied clusters (26-connected) of fewer voxels are dropped as speckles (1: none)", check::range(1, 1000));
     v("samples_per_axis", samples_per_axis, "Density samples per voxel along each axis (the voxel keeps the largest)",
       check::range(1, 8));
     v("pixel_stride", pixel_stride, "One ray per pixel_stride x pixel_stride pixels of each training view",
@@ -140,6 +146,8 @@ class VoxelMapper {
  private:
   VoxelMapOptions options_;
   VoxelMap map_;
+  void removeSpeckles(const std::vector<std::vector<uint32_t>>& misses);
+
   std::vector<float> density_;
   size_t cursor_ = 0;
 };
