@@ -1,4 +1,5 @@
 #include "nerfslam/tracking/frame.h"
+#include "nerfslam/tracking/pyramid.h"
 
 #include <algorithm>
 #include <cmath>
@@ -206,6 +207,18 @@ void Frame::buildGrid() {
   }
 }
 
+cv::Point2f levelToImage(const cv::Size& image, const cv::Size& level, const cv::Point2f& p) {
+  const double sx = static_cast<double>(image.width) / level.width;
+  const double sy = static_cast<double>(image.height) / level.height;
+  return {static_cast<float>((p.x + 0.5) * sx - 0.5), static_cast<float>((p.y + 0.5) * sy - 0.5)};
+}
+
+cv::Point2f imageToLevel(const cv::Size& image, const cv::Size& level, const cv::Point2f& p) {
+  const double sx = static_cast<double>(level.width) / image.width;
+  const double sy = static_cast<double>(level.height) / image.height;
+  return {static_cast<float>((p.x + 0.5) * sx - 0.5), static_cast<float>((p.y + 0.5) * sy - 0.5)};
+}
+
 Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOptions& opt, uint64_t id,
                    double timestamp) {
   if (image.empty()) fail("extractFrame: empty image (frame {})", id);
@@ -282,8 +295,7 @@ Frame extractFrame(const cv::Mat& image, const Camera& camera, const FeatureOpti
     const double s = f.level_scale[l];
     for (size_t i = 0; i < level_kps[l].size(); ++i) {
       cv::KeyPoint k = level_kps[l][i];
-      k.pt.x = static_cast<float>(k.pt.x * s);
-      k.pt.y = static_cast<float>(k.pt.y * s);
+      k.pt = levelToImage(grey.size(), f.pyramid[l].size(), k.pt);
       k.size = static_cast<float>(kPatchSize * s);
       k.octave = l;
       k.class_id = -1;

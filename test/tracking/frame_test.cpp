@@ -1,6 +1,10 @@
 #include "nerfslam/tracking/frame.h"
+#include "nerfslam/tracking/pyramid.h"
 
 #include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
 
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -46,12 +50,12 @@ TEST(Frame, FeaturesSpreadOverRealImageWithConsistentDescriptors) {
   for (int level : {0, 2}) {
     std::vector<cv::KeyPoint> kps;
     std::vector<int> idx;
-    const double s = f.level_scale[static_cast<size_t>(level)];
+    const cv::Size level_size = f.pyramid[static_cast<size_t>(level)].size();
     for (size_t i = 0; i < f.size(); ++i)
       if (f.keypoints[i].octave == level) {
         kps.push_back(f.keypoints[i]);
-        kps.back().pt = cv::Point2f(static_cast<float>(std::round(f.keypoints[i].pt.x / s)),
-                                    static_cast<float>(std::round(f.keypoints[i].pt.y / s)));
+        const cv::Point2f p = imageToLevel(f.pyramid[0].size(), level_size, f.keypoints[i].pt);
+        kps.back().pt = cv::Point2f(std::round(p.x), std::round(p.y));
         idx.push_back(static_cast<int>(i));
       }
     ASSERT_GT(kps.size(), 20u);
@@ -98,6 +102,50 @@ TEST(Frame, RejectsBadInput) {
   const Frame blank = extractFrame(cv::Mat(480, 640, CV_8U, cv::Scalar(128)), cam, {});
   EXPECT_EQ(blank.size(), 0u);
   EXPECT_TRUE(blank.featuresInArea(Eigen::Vector2d(10, 10), 50).empty());
+}
+
+// Each pyramid level's pixels mapped back to the image (levelToImage, what keypoints go through):
+// the centroid of a smooth blob near a corner of a 320x240 image, measured on every level, lands on
+// the blob's centre. Multiplying by the nominal 1.2^l instead (the old mapping) misses it by more
+// than a pixel on the coarse levels, differently along x and y (the levels' sizes are rounded).
+TEST(Frame, PyramidLevelsMapBackToTheImageExactly) {
+  const Camera cam = Camera::pinhole(320, 240, 262.5, 262.5, 159.5, 119.5);
+  const double x0 = 291.3, y0 = 27.8, sigma = 5.0;
+  cv::Mat img(240, 320, CV_8U);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x)
+      img.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(
+          20 + 220 * std::exp(-((x - x0) * (x - x0) + (y - y0) * (y - y0)) / (2 * sigma * sigma)));
+  const Frame f = extractFrame(img, cam, {});
+  ASSERT_GE(f.pyramid.size(), 6u);
+  double worst = 0, worst_nominal = 0;
+  for (size_t l = 1; l < f.pyramid.size(); ++l) {
+    const cv::Mat& lvl = f.pyramid[l];
+    double sw = 0, sx = 0, sy = 0;
+    for (int y = 0; y < lvl.rows; ++y)
+      for (int x = 0; x < lvl.cols; ++x) {
+        const double w = std::max(0.0, lvl.at<uint8_t>(y, x) - 20.0);
+        sw += w;
+        sx += w * x;
+        sy += w * y;
+      }
+    const cv::Point2f c(static_cast<float>(sx / sw), static_cast<float>(sy / sw));
+    const cv::Point2f p = levelToImage(f.pyramid[0].size(), lvl.size(), c);
+    worst = std::max(worst, std::hypot(p.x - x0, p.y - y0));
+    const double s = f.level_scale[l];
+    worst_nominal = std::max(worst_nominal, std::hypot(c.x * s - x0, c.y * s - y0));
+  }
+  EXPECT_LT(worst, 0.1);
+  EXPECT_GT(worst_nominal, 1.0);
+  // imageToLevel is its inverse.
+  const cv::Point2f back =
+      imageToLevel(img.size(), f.pyramid[5].size(), levelToImage(img.size(), f.pyramid[5].size(), {40.f, 30.f}));
+  EXPECT_NEAR(back.x, 40.f, 1e-4);
+  EXPECT_NEAR(back.y, 30.f, 1e-4);
+  // Level 0 is the image itself.
+  const cv::Point2f same = levelToImage(img.size(), img.size(), cv::Point2f(12.25f, 7.5f));
+  EXPECT_FLOAT_EQ(same.x, 12.25f);
+  EXPECT_FLOAT_EQ(same.y, 7.5f);
 }
 
 }  // namespace
