@@ -94,8 +94,9 @@ struct Grid {
 
 // Voxels crossed by the scene's triangles: each triangle sampled on a lattice finer than a quarter
 // voxel (barycentric steps), exact up to that spacing.
-std::vector<uint8_t> voxeliseScene(const Scene& scene, const Grid& g) {
-  std::vector<uint8_t> occ(g.size(), 0);
+// Calls f(p) with the three corners of every triangle of the scene's meshes.
+template <class F>
+void forEachSceneTriangle(const Scene& scene, F&& f) {
   for (const Mesh& m : scene.meshes) {
     const size_t n = m.indices.empty() ? m.vertices.size() : m.indices.size();
     for (size_t k = 0; k + 2 < n; k += 3) {
@@ -104,23 +105,30 @@ std::vector<uint8_t> voxeliseScene(const Scene& scene, const Grid& g) {
         const auto& v = m.vertices[m.indices.empty() ? k + size_t(j) : m.indices[k + size_t(j)]];
         p[j] = Eigen::Vector3d(v.x, v.y, v.z);
       }
-      const double len = std::max({(p[1] - p[0]).norm(), (p[2] - p[0]).norm(), (p[2] - p[1]).norm()});
-      const int steps = std::max(1, int(std::ceil(len / (0.25 * g.res))));
-      for (int a = 0; a <= steps; ++a)
-        for (int b = 0; a + b <= steps; ++b) {
-          const double u = double(a) / steps, w = double(b) / steps;
-          // Every voxel whose closed box holds the point: a surface on a voxel boundary (the room's
-          // walls and floor, at multiples of 5 cm) crosses the voxels on both sides.
-          const Eigen::Vector3d q = p[0] + u * (p[1] - p[0]) + w * (p[2] - p[0]);
-          const double eps = 1e-6 * g.res;
-          for (int c = 0; c < 8; ++c) {
-            const Eigen::Vector3d o((c & 1 ? eps : -eps), (c & 2 ? eps : -eps), (c & 4 ? eps : -eps));
-            Eigen::Vector3i v;
-            if (g.at(q + o, &v)) occ[g.index(v)] = 1;
-          }
-        }
+      f(p);
     }
   }
+}
+
+std::vector<uint8_t> voxeliseScene(const Scene& scene, const Grid& g) {
+  std::vector<uint8_t> occ(g.size(), 0);
+  forEachSceneTriangle(scene, [&](const Eigen::Vector3d* p) {
+    const double len = std::max({(p[1] - p[0]).norm(), (p[2] - p[0]).norm(), (p[2] - p[1]).norm()});
+    const int steps = std::max(1, int(std::ceil(len / (0.25 * g.res))));
+    for (int a = 0; a <= steps; ++a)
+      for (int b = 0; a + b <= steps; ++b) {
+        const double u = double(a) / steps, w = double(b) / steps;
+        // Every voxel whose closed box holds the point: a surface on a voxel boundary (the room's
+        // walls and floor, at multiples of 5 cm) crosses the voxels on both sides.
+        const Eigen::Vector3d q = p[0] + u * (p[1] - p[0]) + w * (p[2] - p[0]);
+        const double eps = 1e-6 * g.res;
+        for (int c = 0; c < 8; ++c) {
+          const Eigen::Vector3d o((c & 1 ? eps : -eps), (c & 2 ? eps : -eps), (c & 4 ? eps : -eps));
+          Eigen::Vector3i v;
+          if (g.at(q + o, &v)) occ[g.index(v)] = 1;
+        }
+      }
+  });
   return occ;
 }
 
@@ -223,19 +231,10 @@ struct Triangle {
 };
 std::vector<Triangle> sceneTriangles(const Scene& scene) {
   std::vector<Triangle> out;
-  for (const Mesh& m : scene.meshes) {
-    const size_t n = m.indices.empty() ? m.vertices.size() : m.indices.size();
-    for (size_t k = 0; k + 2 < n; k += 3) {
-      Eigen::Vector3d p[3];
-      for (int j = 0; j < 3; ++j) {
-        const auto& v = m.vertices[m.indices.empty() ? k + size_t(j) : m.indices[k + size_t(j)]];
-        p[j] = Eigen::Vector3d(v.x, v.y, v.z);
-      }
-      const Eigen::Vector3d nrm = (p[1] - p[0]).cross(p[2] - p[0]);
-      if (nrm.norm() < 1e-12) continue;
-      out.push_back({p[0], p[1], p[2], nrm.normalized()});
-    }
-  }
+  forEachSceneTriangle(scene, [&](const Eigen::Vector3d* p) {
+    const Eigen::Vector3d nrm = (p[1] - p[0]).cross(p[2] - p[0]);
+    if (nrm.norm() >= 1e-12) out.push_back({p[0], p[1], p[2], nrm.normalized()});
+  });
   return out;
 }
 // The nearest triangle along the ray (Moller-Trumbore); false when none.
