@@ -69,11 +69,13 @@ void OccupancyGrid::setValues(std::vector<float> values, float threshold) {
   rebuildBits();
 }
 
-double OccupancyGrid::occupiedFraction() const {
+size_t OccupancyGrid::occupiedCells() const {
   size_t n = 0;
   for (uint64_t w : bits_) n += size_t(__builtin_popcountll(w));
-  return double(n) / double(values_.size());
+  return n;
 }
+
+double OccupancyGrid::occupiedFraction() const { return double(occupiedCells()) / double(values_.size()); }
 
 namespace {
 
@@ -209,8 +211,7 @@ void OccupancyGrid::update(const DensityFn& density, const UpdateParams& prm) {
     stratifiedRanks(total, prm.uniform_cells, seed_uniform, &ranks);
     cells.reserve(size_t(prm.uniform_cells + std::max<int64_t>(0, prm.occupied_cells)));
     for (uint64_t r : ranks) cells.push_back(uint32_t(r));
-    uint64_t occupied = 0;
-    for (uint64_t w : bits_) occupied += uint64_t(__builtin_popcountll(w));
+    const uint64_t occupied = occupiedCells();
     if (prm.occupied_cells > 0 && occupied > 0) {
       // The ranks among the occupied cells, then the cells: a walk over the words, counting bits.
       stratifiedRanks(occupied, prm.occupied_cells, seed_occupied, &ranks);

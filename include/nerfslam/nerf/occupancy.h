@@ -100,6 +100,7 @@ class OccupancyGrid {
   void setValues(std::vector<float> values, float threshold);
   const std::vector<float>& values() const { return values_; }  // cascades * kCells, index mip*kCells + cell
   float threshold() const { return threshold_; }
+  size_t occupiedCells() const;  // over every cascade
   double occupiedFraction() const;
   // Centre of a cell in NeRF space and the side length of cells in cascade mip.
   Eigen::Vector3f cellCenter(int mip, int x, int y, int z) const;
