@@ -31,18 +31,23 @@ RunResult runOn(const std::string& dataset, const fs::path& out, const fs::path&
   return runSlam(ro);
 }
 
+// The synthetic room of `frames` frames at width x height (with its simulated odometry) in `out`.
+void writeRoom(const fs::path& out, int frames, int width, int height) {
+  SynthOptions so;
+  so.scene = "room";
+  so.frames = frames;
+  so.width = width;
+  so.height = height;
+  writeSynthSequence(so, out);
+}
+
 // The synthetic room (70 frames, 320x240) with its simulated odometry: the folder run with
 // --odometry, the bag run with the bag's /odom topic and the run on the same bag with the odometry as
 // tf instead write the same trajectory.txt, byte for byte, with the same metric scale.
 TEST(BagRun, SyntheticRoomBagTracksExactlyLikeTheFolder) {
   if (!bagSupported()) GTEST_SKIP() << "built without ROS bag support (librosbag-storage-dev)";
   test::TempDir dir;
-  SynthOptions so;
-  so.scene = "room";
-  so.frames = 70;
-  so.width = 320;
-  so.height = 240;
-  writeSynthSequence(so, dir / "seq");
+  writeRoom(dir / "seq", 70, 320, 240);
   const fs::path config = test::sourceDir() / "config" / "system" / "synthetic.yaml";
   BagWriteOptions w;
   w.encoding = "mono8";
@@ -137,12 +142,7 @@ TEST(BagRun, Kitti06BagWithOdometryTracksExactlyLikeTheFolder) {
 TEST(BagRun, OdometryFramesRefusedClearly) {
   if (!bagSupported()) GTEST_SKIP() << "built without ROS bag support (librosbag-storage-dev)";
   test::TempDir dir;
-  SynthOptions so;
-  so.scene = "room";
-  so.frames = 5;
-  so.width = 160;
-  so.height = 120;
-  writeSynthSequence(so, dir / "seq");
+  writeRoom(dir / "seq", 5, 160, 120);
   BagWriteOptions w;
   w.encoding = "mono8";
   w.odometry = dir / "seq" / "odometry.txt";
