@@ -147,7 +147,9 @@ TEST(VoxelMap, OccupiedClustersSmallerThanMinClusterVoxelsAreDropped) {
   EXPECT_EQ(dropped.stateAt(speck), VoxelMap::kUnknown);
   size_t occupied = 0, removed = 0;
   for (size_t i = 0; i < kept.size(); ++i) {
-    if (dropped.state[i] == VoxelMap::kOccupied) EXPECT_EQ(kept.state[i], VoxelMap::kOccupied) << i;
+    if (dropped.state[i] == VoxelMap::kOccupied) {
+      EXPECT_EQ(kept.state[i], VoxelMap::kOccupied) << i;
+    }
     if (kept.state[i] != VoxelMap::kOccupied) continue;
     ++occupied;
     removed += dropped.state[i] != VoxelMap::kOccupied;
