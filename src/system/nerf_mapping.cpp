@@ -281,29 +281,40 @@ void NerfMapping::refreshPoses() {
   }
 }
 
-void NerfMapping::updateWeights() {
-  const size_t n = views_.size();
-  if (n == 0 || !trainer_) return;
-  const auto& loss = trainer_->viewLoss();
+std::vector<double> viewRayShares(const std::vector<double>& loss, const std::vector<bool>& valid, size_t recent,
+                                  double recent_share, double min_weight) {
+  const size_t n = loss.size();
+  if (valid.size() != n) fail("viewRayShares: {} losses but {} validity flags", n, valid.size());
   // Loss-proportional share over all views (unseen views get the largest loss seen so far).
   double max_loss = 0, sum = 0;
   for (double l : loss) max_loss = std::max(max_loss, l);
   std::vector<double> w(n);
   for (size_t i = 0; i < n; ++i) w[i] = loss[i] < 0 ? std::max(max_loss, 1e-3) : std::max(loss[i], 1e-6);
   for (double x : w) sum += x;
-  const double mean = sum / double(n);
+  const double mean = n > 0 ? sum / double(n) : 0.0;
   sum = 0;
   for (double& x : w) {
-    x = std::max(x, opt_.min_weight * mean);
+    x = std::max(x, min_weight * mean);
     sum += x;
   }
-  const size_t recent = std::min(n, size_t(opt_.recent_keyframes));
-  const double old_share = recent == n ? 0.0 : 1.0 - opt_.recent_share;
+  recent = std::min(n, recent);
+  const double old_share = recent == n ? 0.0 : 1.0 - recent_share;
   for (size_t i = 0; i < n; ++i) {
     w[i] = old_share * w[i] / sum;
     if (i + recent >= n) w[i] += (1.0 - old_share) / double(recent);
-    if (!views_[i].valid) w[i] = 0;  // its keyframe left the map without a parent
+    if (!valid[i]) w[i] = 0;
   }
+  return w;
+}
+
+void NerfMapping::updateWeights() {
+  const size_t n = views_.size();
+  if (n == 0 || !trainer_) return;
+  std::vector<bool> valid(n);
+  for (size_t i = 0; i < n; ++i) valid[i] = views_[i].valid;  // false: its keyframe left the map without a parent
+  // Once the sequence is over (trainFor) no view is newer than another in any sense that matters.
+  std::vector<double> w = viewRayShares(trainer_->viewLoss(), valid, size_t(opt_.recent_keyframes),
+                                        final_training_ ? opt_.final_recent_share : opt_.recent_share, opt_.min_weight);
   double total = 0;
   for (double x : w) total += x;
   if (!(total > 0)) return;
@@ -524,6 +535,7 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
   // The map is complete: fit the box to it now, not refit_check_steps into the training.
   since_refit_check_ = 0;
   if (const auto box = newBox()) refit(*box);
+  final_training_ = true;
   updateWeights();
   if (threads > 0) trainer_->setThreads(threads);
   if (opt_.final_samples_per_step > 0) {

@@ -110,6 +110,42 @@ bool waitFor(Pred pred, double seconds) {
   return pred();
 }
 
+// The ray shares of the views: the window of newest views while the sequence runs, the loss alone
+// after it (final_recent_share 0), never below min_weight of the mean, nothing for lost keyframes.
+TEST(NerfMapping, ViewRaySharesFollowTheWindowAndTheLoss) {
+  const std::vector<double> loss = {0.02, 0.01, 0.04, 0.01, 0.01, 0.01};
+  const std::vector<bool> valid(loss.size(), true);
+  auto total = [](const std::vector<double>& w) {
+    double t = 0;
+    for (double x : w) t += x;
+    return t;
+  };
+  // While the sequence runs: 0.4 of the rays to the 2 newest views in equal parts, the rest by loss.
+  const auto live = viewRayShares(loss, valid, 2, 0.4, 0.0);
+  ASSERT_EQ(live.size(), loss.size());
+  EXPECT_NEAR(total(live), 1.0, 1e-12);
+  EXPECT_NEAR(live[4] + live[5], 0.4 + 0.6 * 0.02 / 0.10, 1e-12);
+  EXPECT_NEAR(live[2] / live[0], 2.0, 1e-12);  // by loss among the older views
+  EXPECT_NEAR(live[0] / live[1], 2.0, 1e-12);
+  // After the sequence (share 0): in proportion to the loss alone, the newest views no longer favoured.
+  const auto fin = viewRayShares(loss, valid, 2, 0.0, 0.0);
+  EXPECT_NEAR(total(fin), 1.0, 1e-12);
+  for (size_t i = 0; i < loss.size(); ++i) EXPECT_NEAR(fin[i], loss[i] / 0.10, 1e-12) << i;
+  // The floor: a view whose loss is far below the others' still gets min_weight of the mean.
+  const auto floored = viewRayShares({1.0, 1.0, 1.0, 1e-4}, {true, true, true, true}, 1, 0.0, 0.25);
+  const double mean = (3.0 + 1e-4) / 4.0;
+  EXPECT_NEAR(floored[3] / floored[0], 0.25 * mean / 1.0, 1e-9);
+  // A view not seen yet (loss < 0) counts as the largest loss; a lost keyframe's view gets nothing.
+  const auto unseen = viewRayShares({0.01, 0.03, -1.0, 0.02}, {true, true, true, false}, 1, 0.0, 0.0);
+  EXPECT_DOUBLE_EQ(unseen[2], unseen[1]);
+  EXPECT_EQ(unseen[3], 0.0);
+  // As many recent views as views: equal shares.
+  const auto all_recent = viewRayShares({0.01, 0.05}, {true, true}, 4, 0.4, 0.0);
+  EXPECT_DOUBLE_EQ(all_recent[0], 0.5);
+  EXPECT_DOUBLE_EQ(all_recent[1], 0.5);
+  EXPECT_THROW(viewRayShares({0.01}, {true, true}, 1, 0.0, 0.0), Error);
+}
+
 TEST(NerfMapping, TrainsInItsThreadOnPublishedKeyframes) {
   Fixture fx(8);
   NerfMapping nm(*fx.map, fx.bus, testOptions());

@@ -12,7 +12,9 @@
 // Training policy (iMAP / NICE-SLAM style window): a share `recent_share` of each step's rays comes
 // from the `recent_keyframes` newest keyframes; the rest is spread over all keyframes in proportion to
 // their running photometric loss (poorly reconstructed views get more rays, none gets fewer than
-// `min_weight` of the mean), so old areas keep being revisited and are not forgotten.
+// `min_weight` of the mean), so old areas keep being revisited and are not forgotten. The training
+// after the sequence (trainFor) uses `final_recent_share` (0: by loss alone) instead: the window
+// had kept 40 % of the final minute's rays on the last 4 views (New Tsukuba 0.9 dB held-out).
 //
 // Scene bounds (nerf/scene_box.h): the first keyframes fix a NeRF-space transform from the sparse map
 // (robust extent of points and camera centres, times box_margin, inside an aabb_scale box with
@@ -178,6 +180,10 @@ struct NerfMappingOptions {
   // 2^16 gave twice the samples per second of 2^14 and a better held-out PSNR, on New Tsukuba
   // 2 dB less (config/system/kitti.yaml sets it for driving).
   int final_samples_per_step = 0;
+  // Share of the final training's rays drawn from the newest keyframes. The window serves a camera
+  // that is still exploring; once the sequence is over every view is as new as any other, so 0
+  // spreads the rays over all views by their loss alone.
+  double final_recent_share = 0.0;
   int final_threads = 0;                                  // threads for the final training (0: all hardware threads)
   nerf::TrainOptions train = nerfMappingTrainDefaults();  // the trainer; train.seed also seeds the field
   NerfEvalOptions outputs;                                // what `run` renders from the map at the end
@@ -240,6 +246,9 @@ struct NerfMappingOptions {
       check::range(int64_t(0), int64_t(100000000)));
     v("final_samples_per_step", final_samples_per_step,
       "Samples per step of the final training (0: train.samples_per_step)", check::range(0, 1 << 22));
+    v("final_recent_share", final_recent_share,
+      "Share of the final training's rays drawn from the newest keyframes (recent_share while the sequence runs)",
+      check::range(0.0, 1.0));
     v("final_threads", final_threads, "Threads of the final training (0: all hardware threads)", check::range(0, 256));
     v("outputs", outputs,
       "What `nerfslam run` renders from the map after the sequence: held-out and keyframe comparisons, the "
@@ -249,6 +258,13 @@ struct NerfMappingOptions {
       "re-fits and their distillation");
   }
 };
+
+// Each training view's share of a step's rays (the trainer normalises them): recent_share to the
+// `recent` newest views in equal parts, the rest in proportion to each view's running loss (a view
+// not seen yet, loss < 0, counts as the largest loss), none below min_weight of the mean; a view
+// whose keyframe left the map (valid false) gets 0. recent >= the number of views: equal shares.
+std::vector<double> viewRayShares(const std::vector<double>& loss, const std::vector<bool>& valid, size_t recent,
+                                  double recent_share, double min_weight);
 
 struct NerfMappingStats {
   int64_t steps = 0;
@@ -397,6 +413,7 @@ class NerfMapping {
   std::atomic<bool> stop_{false};
   std::atomic<bool> frozen_{false};
   bool started_ = false, stopped_ = false;
+  bool final_training_ = false;  // trainFor() has begun: updateWeights() uses final_recent_share
 
   mutable std::mutex model_mutex_;             // model_, trainer_ and the views
   mutable std::atomic<int> model_waiters_{0};  // threads waiting in lockModel()
