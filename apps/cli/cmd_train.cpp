@@ -151,17 +151,24 @@ int runTrain(const TrainArgs& a) {
                  split.depth_views);
 
   nerf::NerfModel model = nerf::NerfModel::create(nerf::FieldConfig{}, scene, uint64_t(a.seed));
+  // `train`'s own defaults (and flags), then what the config file sets; flags given on the command
+  // line win over the file. A key the file leaves out keeps `train`'s default, not the NeRF mapping
+  // thread's (one thread, 2^14-sample steps), which a file with one learning-rate key had silently
+  // brought in.
   nerf::TrainOptions to;
+  to.threads = a.threads;
+  to.seed = a.seed;
+  to.samples_per_step = a.samples_per_step;
   if (!a.config.empty()) {
     SystemOptions so;
+    so.nerf.train = to;
     loadOptionsFile(a.config, so);
     validateOptions(so, a.config);
     to = so.nerf.train;
+    if (a.threads_given) to.threads = a.threads;
+    if (a.seed_given) to.seed = a.seed;
+    if (a.samples_given) to.samples_per_step = a.samples_per_step;
   }
-  const bool defaults = a.config.empty();
-  if (defaults || a.threads_given) to.threads = a.threads;
-  if (defaults || a.seed_given) to.seed = a.seed;
-  if (defaults || a.samples_given) to.samples_per_step = a.samples_per_step;
   const size_t num_train = split.train.size();
   nerf::Trainer trainer(model, std::move(split.train), to);  // it keeps a compact copy of each image
 

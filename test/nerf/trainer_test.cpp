@@ -173,8 +173,9 @@ TEST(TrainCli, BadInputGivesClearErrors) {
   EXPECT_FALSE(std::filesystem::exists(dir / "o" / "model.nerf"));
 }
 
-// `train --config` takes the nerf.train options of a `run --config` file; --samples-per-step on the
-// command line overrides it; a wrong key is refused naming the file.
+// `train --config` takes the nerf.train options of a `run --config` file (the keys it sets; the others
+// keep `train`'s defaults); --samples-per-step on the command line overrides it; a wrong key is
+// refused naming the file.
 TEST(TrainCli, ConfigGivesTheTrainingOptionsAndFlagsOverrideIt) {
   test::TempDir dir;
   std::ofstream(dir / "t.json")
@@ -194,6 +195,15 @@ TEST(TrainCli, ConfigGivesTheTrainingOptionsAndFlagsOverrideIt) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   report = nlohmann::json::parse(std::ifstream(dir / "o2" / "report.json"));
   EXPECT_EQ(report.at("samples_per_step").get<int>(), 2048);
+  // Keys the file leaves out keep `train`'s defaults (2 threads, 2^16 samples a step), not those of
+  // the NeRF mapping thread that a `run` config starts from (1 thread, 2^14).
+  test::writeText(dir / "lr.yaml", "nerf:\n  train:\n    lr_decay_start: 1\n");
+  r = test::runCli("train --transforms " + (dir / "t.json").string() + " --steps 2 --test-every 0 --config " +
+                   (dir / "lr.yaml").string() + " --out " + (dir / "o4").string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  report = nlohmann::json::parse(std::ifstream(dir / "o4" / "report.json"));
+  EXPECT_EQ(report.at("samples_per_step").get<int>(), 1 << 16);
+  EXPECT_EQ(report.at("threads").get<int>(), 2);
   test::writeText(dir / "bad.yaml", "nerf:\n  train:\n    distorsion_weight: 0.01\n");
   r = test::runCli("train --transforms " + (dir / "t.json").string() + " --steps 1 --config " +
                    (dir / "bad.yaml").string() + " --out " + (dir / "o3").string());
