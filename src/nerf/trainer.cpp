@@ -119,7 +119,14 @@ double Trainer::learningRate() const {
     const int64_t k = 1 + (step_ - opt_.lr_decay_start) / opt_.lr_decay_interval;
     lr *= std::pow(opt_.lr_decay_factor, double(k));
   }
+  const double tail_start = 1.0 - opt_.lr_tail;
+  if (opt_.lr_tail > 0 && budget_progress_ > tail_start)
+    lr *= std::pow(opt_.lr_tail_factor, (budget_progress_ - tail_start) / opt_.lr_tail);
   return lr;
+}
+
+void Trainer::setBudgetProgress(double fraction) {
+  budget_progress_ = std::isfinite(fraction) ? std::clamp(fraction, 0.0, 1.0) : 0.0;
 }
 
 void Trainer::densityBatch(const float* xyz, int n, float* sigma) {

@@ -75,6 +75,32 @@ TEST(TrainerOnline, AddsViewsAndReadsThemBack) {
   EXPECT_EQ(t.numViews(), 2u);
 }
 
+// The learning rate's tail: full rate until the last lr_tail of the reported budget, then down
+// exponentially to lr_tail_factor of it at the end; a training that reports no progress keeps it.
+TEST(TrainerOnline, LearningRateFallsOverTheBudgetsTail) {
+  NerfModel m = NerfModel::create(tinyField(), SceneTransform{}, 1);
+  TrainOptions o = tinyTraining(1);
+  o.lr = 0.01;
+  o.lr_tail = 0.3;
+  o.lr_tail_factor = 0.25;
+  Trainer t(m, {view(0)}, o);
+  EXPECT_DOUBLE_EQ(t.learningRate(), 0.01);  // no progress reported
+  t.setBudgetProgress(0.7);
+  EXPECT_DOUBLE_EQ(t.learningRate(), 0.01);
+  t.setBudgetProgress(0.85);
+  EXPECT_NEAR(t.learningRate(), 0.01 * 0.5, 1e-12);  // halfway through the tail: sqrt(0.25)
+  t.setBudgetProgress(1.0);
+  EXPECT_NEAR(t.learningRate(), 0.01 * 0.25, 1e-12);
+  t.setBudgetProgress(7.0);  // clamped
+  EXPECT_NEAR(t.learningRate(), 0.01 * 0.25, 1e-12);
+  t.setBudgetProgress(std::nan(""));
+  EXPECT_DOUBLE_EQ(t.learningRate(), 0.01);
+  o.lr_tail = 0;  // off
+  Trainer off(m, {view(0)}, o);
+  off.setBudgetProgress(1.0);
+  EXPECT_DOUBLE_EQ(off.learningRate(), 0.01);
+}
+
 TEST(TrainerOnline, PosesAndWeightsAreValidated) {
   NerfModel m = NerfModel::create(tinyField(), SceneTransform{}, 1);
   Trainer t(m, {view(0), view(1)}, tinyTraining(1));

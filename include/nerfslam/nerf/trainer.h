@@ -102,6 +102,9 @@ class Trainer {
   int64_t steps() const { return step_; }
   int64_t rollbacks() const { return rollbacks_; }
   double learningRate() const;
+  // How much of its budget the training has used, in [0, 1] (clamped): from it, learningRate() applies
+  // TrainOptions::lr_tail. Never called: no tail.
+  void setBudgetProgress(double fraction);
   const StageTimes& totalTimes() const { return total_; }
   // Takes a snapshot now (the trainer also does every snapshot_interval steps).
   void snapshot();
@@ -202,6 +205,7 @@ class Trainer {
   TrainOptions opt_;
   std::vector<std::unique_ptr<ThreadState>> threads_;
   int64_t step_ = 0;
+  double budget_progress_ = 0;  // setBudgetProgress()
   int64_t rollbacks_ = 0;
   StageTimes total_;
   // Divergence snapshot.
