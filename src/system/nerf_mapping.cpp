@@ -312,9 +312,8 @@ void NerfMapping::updateWeights() {
   if (n == 0 || !trainer_) return;
   std::vector<bool> valid(n);
   for (size_t i = 0; i < n; ++i) valid[i] = views_[i].valid;  // false: its keyframe left the map without a parent
-  // Once the sequence is over (trainFor) no view is newer than another in any sense that matters.
-  std::vector<double> w = viewRayShares(trainer_->viewLoss(), valid, size_t(opt_.recent_keyframes),
-                                        final_training_ ? opt_.final_recent_share : opt_.recent_share, opt_.min_weight);
+  std::vector<double> w =
+      viewRayShares(trainer_->viewLoss(), valid, size_t(opt_.recent_keyframes), opt_.recent_share, opt_.min_weight);
   double total = 0;
   for (double x : w) total += x;
   if (!(total > 0)) return;
@@ -535,7 +534,8 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
   // The map is complete: fit the box to it now, not refit_check_steps into the training.
   since_refit_check_ = 0;
   if (const auto box = newBox()) refit(*box);
-  final_training_ = true;
+  // Once the sequence is over no view is newer than another in any sense that matters.
+  opt_.recent_share = opt_.final_recent_share;
   updateWeights();
   if (threads > 0) trainer_->setThreads(threads);
   if (opt_.final_samples_per_step > 0) {

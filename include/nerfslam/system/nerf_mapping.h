@@ -413,7 +413,6 @@ class NerfMapping {
   std::atomic<bool> stop_{false};
   std::atomic<bool> frozen_{false};
   bool started_ = false, stopped_ = false;
-  bool final_training_ = false;  // trainFor() has begun: updateWeights() uses final_recent_share
 
   mutable std::mutex model_mutex_;             // model_, trainer_ and the views
   mutable std::atomic<int> model_waiters_{0};  // threads waiting in lockModel()
