@@ -330,6 +330,7 @@ void NerfMapping::stepOnce() {
     since_refit_check_ = 0;
     if (const auto box = newBox()) refit(*box);
   }
+  const double lr = trainer_->learningRate();
   const auto t0 = Clock::now();
   const nerf::StepStats st = trainer_->step();
   const double dt = std::chrono::duration<double>(Clock::now() - t0).count();
@@ -345,6 +346,7 @@ void NerfMapping::stepOnce() {
     stats_.train_seconds += dt;
     stats_.last_loss = st.loss;
     stats_.last_depth_loss = st.depth_loss;
+    stats_.learning_rate = lr;
     stats_.times += st.times;
     rate_window_.emplace_back(now, stats_.samples);
     while (rate_window_.size() > 2 && now - rate_window_.front().first > 5.0) rate_window_.erase(rate_window_.begin());
@@ -548,10 +550,15 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
     if (steps > 0 && done >= steps) break;
     if (seconds > 0 && std::chrono::duration<double>(Clock::now() - t0).count() >= seconds) break;
     if (stop && stop()) break;
+    // The budget used so far: the learning rate's tail (train.lr_tail) follows it.
+    const double elapsed = std::chrono::duration<double>(Clock::now() - t0).count();
+    trainer_->setBudgetProgress(
+        std::max(steps > 0 ? double(done) / double(steps) : 0.0, seconds > 0 ? elapsed / seconds : 0.0));
     stepOnce();
     ++done;
     letWaitersIn(lock);
   }
+  if (trainer_) trainer_->setBudgetProgress(0.0);  // training that follows (a resumed map) at the full rate
   return done;
 }
 

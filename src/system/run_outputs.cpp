@@ -260,6 +260,7 @@ void reportNerfStats(const NerfMappingStats& st, nlohmann::json& rep) {
   rep["nerf_train_seconds"] = st.train_seconds;
   rep["nerf_samples_per_second"] = st.train_seconds > 0 ? double(st.samples) / st.train_seconds : 0.0;
   rep["nerf_rollbacks"] = st.rollbacks;
+  rep["nerf_learning_rate_last"] = st.learning_rate;
   rep["nerf_psnr_heldout_running"] = st.psnr_heldout;
   nlohmann::json curve = nlohmann::json::array();
   for (const auto& p : st.psnr_history)

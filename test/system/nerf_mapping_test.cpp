@@ -277,6 +277,14 @@ TEST(NerfMapping, HeldOutViewsImproveWithTraining) {
   EXPECT_GT(after, before + 5.0) << "before " << before << " after " << after;
   EXPECT_GT(after, 18.0) << "before " << before;
   EXPECT_EQ(nm.viewKeyframes().size(), 8u);
+  // The last step of the budget ran at the end of the learning rate's tail: lr_tail_factor of it.
+  const nerf::TrainOptions t = testOptions().train;
+  EXPECT_NEAR(st.learning_rate, t.lr * std::pow(t.lr_tail_factor, (399.0 / 400.0 - (1.0 - t.lr_tail)) / t.lr_tail),
+              1e-9);
+  EXPECT_LT(st.learning_rate, 0.26 * t.lr);
+  // A training that follows starts at the full rate again.
+  EXPECT_EQ(nm.trainFor(0, 1), 1);
+  EXPECT_DOUBLE_EQ(nm.stats().learning_rate, t.lr);
 }
 
 TEST(NerfMapping, FollowsPosesThatBundleAdjustmentChanges) {

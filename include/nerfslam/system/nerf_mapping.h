@@ -302,6 +302,7 @@ struct NerfMappingStats {
   std::vector<PsnrPoint> psnr_history;
   double last_loss = 0;
   double last_depth_loss = 0;  // mean line-of-sight loss of the last step's depth rays
+  double learning_rate = 0;    // of the last step: train.lr, lower over the final training's tail (lr_tail)
   // Where the NeRF thread's time goes: the trainer's stages (seconds, summed over steps), reading
   // poses and points back from the map, and box re-fits (with their distillation).
   nerf::StageTimes times;
