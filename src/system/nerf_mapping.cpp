@@ -298,7 +298,8 @@ std::vector<double> viewRayShares(const std::vector<double>& loss, const std::ve
     sum += x;
   }
   recent = std::min(n, recent);
-  const double old_share = recent == n ? 0.0 : 1.0 - recent_share;
+  // No view older than the window (recent >= n): equal shares, unless there is no window at all.
+  const double old_share = recent == n && recent_share > 0 ? 0.0 : 1.0 - recent_share;
   for (size_t i = 0; i < n; ++i) {
     w[i] = old_share * w[i] / sum;
     if (i + recent >= n) w[i] += (1.0 - old_share) / double(recent);

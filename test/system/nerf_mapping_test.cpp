@@ -143,6 +143,10 @@ TEST(NerfMapping, ViewRaySharesFollowTheWindowAndTheLoss) {
   const auto all_recent = viewRayShares({0.01, 0.05}, {true, true}, 4, 0.4, 0.0);
   EXPECT_DOUBLE_EQ(all_recent[0], 0.5);
   EXPECT_DOUBLE_EQ(all_recent[1], 0.5);
+  // ... but without a window (the final training) the loss alone decides, however few the views.
+  const auto few_final = viewRayShares({0.01, 0.05}, {true, true}, 4, 0.0, 0.0);
+  EXPECT_NEAR(few_final[0], 1.0 / 6.0, 1e-12);
+  EXPECT_NEAR(few_final[1], 5.0 / 6.0, 1e-12);
   EXPECT_THROW(viewRayShares({0.01}, {true, true}, 1, 0.0, 0.0), Error);
 }
 
