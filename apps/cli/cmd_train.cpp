@@ -184,7 +184,7 @@ int runTrain(const TrainArgs& a) {
     if (a.steps > 0 && trainer.steps() >= a.steps) break;
     if (a.seconds > 0 && train_seconds >= a.seconds) break;
     // The budget used so far: the learning rate's tail (nerf.train.lr_tail) follows it.
-    trainer.setBudgetProgress(a.seconds > 0 ? train_seconds / a.seconds : double(trainer.steps()) / double(a.steps));
+    trainer.setBudgetProgress(nerf::budgetProgress(trainer.steps(), a.steps, train_seconds, a.seconds));
     const auto t0 = Clock::now();
     const auto st = trainer.step();
     train_seconds += std::chrono::duration<double>(Clock::now() - t0).count();

@@ -125,6 +125,11 @@ double Trainer::learningRate() const {
   return lr;
 }
 
+double budgetProgress(int64_t steps, int64_t step_budget, double seconds, double second_budget) {
+  return std::max(step_budget > 0 ? double(steps) / double(step_budget) : 0.0,
+                  second_budget > 0 ? seconds / second_budget : 0.0);
+}
+
 void Trainer::setBudgetProgress(double fraction) {
   budget_progress_ = std::isfinite(fraction) ? std::clamp(fraction, 0.0, 1.0) : 0.0;
 }

@@ -552,9 +552,8 @@ int64_t NerfMapping::trainFor(double seconds, int64_t steps, int threads, const 
     if (seconds > 0 && std::chrono::duration<double>(Clock::now() - t0).count() >= seconds) break;
     if (stop && stop()) break;
     // The budget used so far: the learning rate's tail (train.lr_tail) follows it.
-    const double elapsed = std::chrono::duration<double>(Clock::now() - t0).count();
     trainer_->setBudgetProgress(
-        std::max(steps > 0 ? double(done) / double(steps) : 0.0, seconds > 0 ? elapsed / seconds : 0.0));
+        nerf::budgetProgress(done, steps, std::chrono::duration<double>(Clock::now() - t0).count(), seconds));
     stepOnce();
     ++done;
     letWaitersIn(lock);

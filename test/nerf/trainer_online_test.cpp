@@ -99,6 +99,12 @@ TEST(TrainerOnline, LearningRateFallsOverTheBudgetsTail) {
   Trainer off(m, {view(0)}, o);
   off.setBudgetProgress(1.0);
   EXPECT_DOUBLE_EQ(off.learningRate(), 0.01);
+  // The budget used: whichever limit is nearer its end; a limit not set (0) does not count.
+  EXPECT_DOUBLE_EQ(budgetProgress(50, 100, 0.0, 0.0), 0.5);
+  EXPECT_DOUBLE_EQ(budgetProgress(0, 0, 15.0, 60.0), 0.25);
+  EXPECT_DOUBLE_EQ(budgetProgress(50, 100, 45.0, 60.0), 0.75);
+  EXPECT_DOUBLE_EQ(budgetProgress(90, 100, 6.0, 60.0), 0.9);
+  EXPECT_DOUBLE_EQ(budgetProgress(10, 0, 10.0, 0.0), 0.0);
 }
 
 TEST(TrainerOnline, PosesAndWeightsAreValidated) {

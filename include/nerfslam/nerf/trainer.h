@@ -93,6 +93,11 @@ struct StepStats {
   StageTimes times;  // seconds of wall time for this step, per stage
 };
 
+// The share of a training's budget used after `steps` steps and `seconds`: the larger of
+// steps / step_budget and seconds / second_budget over the budgets that are set (> 0), since the
+// training stops at whichever it reaches first; 0 when neither is set.
+double budgetProgress(int64_t steps, int64_t step_budget, double seconds, double second_budget);
+
 class Trainer {
  public:
   Trainer(NerfModel& model, std::vector<TrainingView> views, const TrainOptions& options);
@@ -102,8 +107,8 @@ class Trainer {
   int64_t steps() const { return step_; }
   int64_t rollbacks() const { return rollbacks_; }
   double learningRate() const;
-  // How much of its budget the training has used, in [0, 1] (clamped): from it, learningRate() applies
-  // TrainOptions::lr_tail. Never called: no tail.
+  // How much of its budget the training has used, in [0, 1] (clamped; see budgetProgress): from it,
+  // learningRate() applies TrainOptions::lr_tail. Never called: no tail.
   void setBudgetProgress(double fraction);
   const StageTimes& totalTimes() const { return total_; }
   // Takes a snapshot now (the trainer also does every snapshot_interval steps).
