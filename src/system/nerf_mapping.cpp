@@ -297,9 +297,8 @@ std::vector<double> viewRayShares(const std::vector<double>& loss, const std::ve
     x = std::max(x, min_weight * mean);
     sum += x;
   }
-  recent = std::min(n, recent);
-  // No view older than the window (recent >= n): equal shares, unless there is no window at all.
-  const double old_share = recent == n && recent_share > 0 ? 0.0 : 1.0 - recent_share;
+  recent = recent_share > 0 ? std::min(n, recent) : 0;  // no share: no window
+  const double old_share = recent == n ? 0.0 : 1.0 - recent_share;
   for (size_t i = 0; i < n; ++i) {
     w[i] = old_share * w[i] / sum;
     if (i + recent >= n) w[i] += (1.0 - old_share) / double(recent);

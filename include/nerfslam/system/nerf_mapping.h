@@ -262,8 +262,8 @@ struct NerfMappingOptions {
 // Each training view's share of a step's rays (the trainer normalises them): recent_share to the
 // `recent` newest views in equal parts, the rest in proportion to each view's running loss (a view
 // not seen yet, loss < 0, counts as the largest loss), none below min_weight of the mean; a view
-// whose keyframe left the map (valid false) gets 0. recent >= the number of views: equal shares
-// (recent_share > 0; with 0, the loss alone as always).
+// whose keyframe left the map (valid false) gets 0. recent >= the number of views: equal shares.
+// recent_share 0 is no window at all: the loss alone, however few the views.
 std::vector<double> viewRayShares(const std::vector<double>& loss, const std::vector<bool>& valid, size_t recent,
                                   double recent_share, double min_weight);
 
