@@ -97,11 +97,15 @@ TEST(SystemConfigs, PhotoSetAndLongRunSettings) {
   const SystemOptions long_run = loadRunConfig(dir / "long_run.yaml");
   EXPECT_DOUBLE_EQ(long_run.mapping.redundant_ratio, 0.8);
   EXPECT_NE(long_run.mapping.redundant_ratio, defaults.mapping.redundant_ratio);
-  // Driving: the final NeRF training in larger steps (docs/benchmarks.md, KITTI 06 and New Tsukuba).
+  // Driving: the final NeRF training in larger steps and a learned sky (docs/benchmarks.md, KITTI 06
+  // and New Tsukuba).
   SystemOptions kitti = loadRunConfig(dir / "kitti.yaml");
   EXPECT_EQ(kitti.nerf.final_samples_per_step, 1 << 16);
   EXPECT_NE(kitti.nerf.final_samples_per_step, defaults.nerf.final_samples_per_step);
+  EXPECT_TRUE(kitti.nerf.train.learned_background);
+  EXPECT_FALSE(defaults.nerf.train.learned_background);
   kitti.nerf.final_samples_per_step = defaults.nerf.final_samples_per_step;
+  kitti.nerf.train.learned_background = defaults.nerf.train.learned_background;
   EXPECT_EQ(printOptions(kitti), printOptions(defaults)) << "kitti.yaml sets nothing else";
   // The files that write the defaults out (their figures are the defaults' figures) set nothing else.
   for (const char* name : {"video.yaml", "synthetic.yaml", "tum.yaml", "euroc.yaml"}) {
